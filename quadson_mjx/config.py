@@ -1,0 +1,102 @@
+"""Configs: built by factory functions, overridden with dotted keys, frozen, saved with every run.
+
+A config is an `ml_collections.ConfigDict` (a brax dependency already). Factories return it locked,
+so a typo can never add a new key silently; `apply_overrides` parses command-line style
+`--env.reward.forward_target=0.4` and raises on an unknown key or a value of the wrong type.
+"""
+
+from __future__ import annotations
+
+import ast
+import difflib
+import json
+from collections.abc import Iterable, Mapping
+
+import ml_collections
+
+ConfigDict = ml_collections.ConfigDict
+
+
+def _flat_keys(cfg: Mapping, prefix: str = "") -> list[str]:
+    keys = []
+    for k, v in cfg.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, Mapping | ConfigDict):
+            keys.extend(_flat_keys(v, name + "."))
+        else:
+            keys.append(name)
+    return keys
+
+
+def _parse_value(text: str, current, key: str):
+    """Parses `text` into the type of the current value; raises naming `key` on a mismatch."""
+    if isinstance(current, str):
+        return text
+    try:
+        value = ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        if text.lower() in ("true", "false"):
+            value = text.lower() == "true"
+        else:
+            raise ValueError(
+                f"config key '{key}': cannot parse {text!r} as {type(current).__name__}"
+            ) from None
+    if current is None:
+        return value
+    if isinstance(current, bool):
+        if not isinstance(value, bool):
+            raise ValueError(f"config key '{key}' takes true/false, got {text!r}")
+        return value
+    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(current, tuple | list) and isinstance(value, tuple | list):
+        if len(value) != len(current):
+            raise ValueError(f"config key '{key}' takes {len(current)} values, got {len(value)}")
+        return type(current)(
+            float(v) if isinstance(c, float) else v for v, c in zip(value, current, strict=True)
+        )
+    if type(value) is not type(current):
+        raise ValueError(f"config key '{key}' takes a {type(current).__name__}, got {text!r}")
+    return value
+
+
+def apply_overrides(cfg: ConfigDict, overrides: Iterable[str]) -> ConfigDict:
+    """Returns a copy of `cfg` with `key.sub=value` overrides applied (leading dashes allowed).
+
+    Raises ValueError naming the key for an unknown key (with the closest known ones), a missing
+    '=', or a value that does not parse as the type of the default.
+    """
+    out = ml_collections.ConfigDict(cfg.to_dict())
+    known = _flat_keys(out)
+    for item in overrides:
+        body = item.lstrip("-")
+        if "=" not in body:
+            raise ValueError(f"override {item!r} must look like key.sub=value")
+        key, text = body.split("=", 1)
+        if key not in known:
+            close = difflib.get_close_matches(key, known, n=3)
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            raise ValueError(f"unknown config key '{key}'{hint}")
+        *path, leaf = key.split(".")
+        node = out
+        for p in path:
+            node = node[p]
+        node[leaf] = _parse_value(text, node[leaf], key)
+    out.lock()
+    return out
+
+
+def freeze(cfg: ConfigDict) -> ml_collections.FrozenConfigDict:
+    return ml_collections.FrozenConfigDict(cfg)
+
+
+def to_json(cfg) -> str:
+    """The resolved config as JSON, for saving beside checkpoints and inside MCAP files."""
+    data = cfg.to_dict() if hasattr(cfg, "to_dict") else dict(cfg)
+    return json.dumps(data, indent=2, sort_keys=True, default=list)
+
+
+def from_json(text: str) -> ConfigDict:
+    cfg = ml_collections.ConfigDict(json.loads(text))
+    cfg.lock()
+    return cfg
