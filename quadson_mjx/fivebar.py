@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from quadson_mjx import constants as C
 
@@ -74,9 +75,15 @@ def _safe_norm(v: jax.Array) -> jax.Array:
     return jnp.sqrt(jnp.maximum(sq, tiny))
 
 
+def _safe_atan2(y: jax.Array, x: jax.Array) -> jax.Array:
+    """atan2(y, x), 0 at the origin, with a finite (zero) gradient there instead of NaN."""
+    ok = (x != 0) | (y != 0)
+    return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0.0), jnp.where(ok, x, 1.0)), 0.0)
+
+
 def _cw_angle(v: jax.Array) -> jax.Array:
     """Clockwise angle phi of planar vectors v (..., 2): v = |v| (cos phi, -sin phi)."""
-    return jnp.arctan2(-v[..., 1], v[..., 0])
+    return _safe_atan2(-v[..., 1], v[..., 0])
 
 
 def _cw_dir(phi: jax.Array) -> jax.Array:
@@ -152,3 +159,179 @@ def leg_fk(angles: jax.Array) -> jax.Array:
         angles = angles.astype(jnp.result_type(float))
     *_, foot, _, _ = _planar_points(angles[..., 1], angles[..., 2])
     return _to_3d(foot, angles[..., 0])
+
+
+def chain_closes(angles: jax.Array) -> jax.Array:
+    """Whether the five-bar can be assembled at these motor angles: |L4 - L2| <= |p4 - p2| <= L2 + L4.
+
+    angles: (..., 3) (t0, t1, t5) [rad] -> (...) bool. Where it is False, `leg_fk` returns the
+    clamped (links p2-p3 and p3-p4 folded or stretched) configuration.
+    """
+    angles = jnp.asarray(angles)
+    p2 = C.L1 * _cw_dir(angles[..., 1])
+    p4 = jnp.stack([jnp.full_like(angles[..., 2], C.L0), jnp.zeros_like(angles[..., 2])], -1)
+    p4 = p4 + C.L5 * _cw_dir(angles[..., 2])
+    l24 = jnp.linalg.norm(p4 - p2, axis=-1)
+    return (l24 <= C.L2 + C.L4) & (l24 >= abs(C.L4 - C.L2))
+
+
+def within_limits(angles: jax.Array) -> jax.Array:
+    """Joint limits of the real robot (constants.MOTOR_RANGES) and the toe-in guard t5 - t1 <= TOE_IN_MAX.
+
+    angles: (..., 3) (t0, t1, t5) [rad] -> (...) bool.
+    """
+    angles = jnp.asarray(angles)
+    lo = jnp.asarray(C.MOTOR_RANGES[:, 0], angles.dtype)
+    hi = jnp.asarray(C.MOTOR_RANGES[:, 1], angles.dtype)
+    in_range = jnp.all((angles >= lo) & (angles <= hi), axis=-1)
+    return in_range & (angles[..., 2] - angles[..., 1] <= C.TOE_IN_MAX)
+
+
+# --- inverse kinematics (seed 000, Algorithm 2) -----------------------------------------------
+
+# Why an IK target is rejected, in the order `leg_ik_checked` reports them.
+IK_CHECKS: tuple[str, ...] = (
+    "out of reach of the p1-p2-foot chain",
+    "out of reach of the p5-p4-p3 chain",
+    "t0 beyond its joint limit",
+    "t1 beyond its joint limit",
+    "t5 beyond its joint limit",
+    "toe-in guard t5 - t1 > TOE_IN_MAX",
+    "off the robot's assembly branch",
+)
+
+
+def _ik_solve(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Algorithm 2 with its failure flags: foot (..., 3) [m] -> angles (..., 3), ok (..., len(IK_CHECKS))."""
+    x, y, z = foot[..., 0], foot[..., 1], foot[..., 2]
+    # Step 1-2: the sign of robots.md; then y' = -sqrt(y^2 + z^2) (the foot below the motor axis).
+    t0 = -_safe_atan2(z, -y)
+    yp = y * jnp.cos(t0) + z * jnp.sin(t0)
+    pe = jnp.stack([x, yp], axis=-1)
+    # Step 3: motor 1 from the triangle p1, p2, foot (L1, L2 + L3, |pe|).
+    l1e = _safe_norm(pe)
+    l23 = C.L2 + C.L3
+    c12 = (C.L1**2 + l1e**2 - l23**2) / (2.0 * C.L1 * l1e)
+    t1 = _cw_angle(pe) + safe_acos(c12)
+    # Step 4: p3 divides p2 -> foot in the ratio L2 : L3.
+    p2 = C.L1 * _cw_dir(t1)
+    p3 = (pe * C.L2 + p2 * C.L3) / l23
+    # Step 5: motor 5 from the triangle p5, p4, p3 (L5, L4, |p3 - p5|). The seed's
+    # theta5 = pi - (theta350 + theta354) is the clockwise angle of p5->p3 minus theta354.
+    p5 = jnp.stack([jnp.full_like(x, C.L0), jnp.zeros_like(x)], axis=-1)
+    d53 = p3 - p5
+    l35 = _safe_norm(d53)
+    c354 = (l35**2 + C.L5**2 - C.L4**2) / (2.0 * l35 * C.L5)
+    t5 = _cw_angle(d53) - safe_acos(c354)
+    t5 = jnp.where(t5 <= -jnp.pi, t5 + 2.0 * jnp.pi, t5)
+    angles = jnp.stack([t0, t1, t5], axis=-1)
+
+    lo = jnp.asarray(C.MOTOR_RANGES[:, 0], foot.dtype)
+    hi = jnp.asarray(C.MOTOR_RANGES[:, 1], foot.dtype)
+    in_range = (angles >= lo) & (angles <= hi)
+    # FK (Algorithm 1) puts p3 clockwise of p2 -> p4; a solution with p3 on the other side is a
+    # pose of the other assembly mode, which the robot never reaches.
+    p4 = p5 + C.L5 * _cw_dir(t5)
+    d24, d23 = p4 - p2, p3 - p2
+    cross = d24[..., 0] * d23[..., 1] - d24[..., 1] * d23[..., 0]
+    tol = 64 * jnp.finfo(foot.dtype).eps * C.L2 * (C.L2 + C.L4)
+    ok = jnp.stack(
+        [
+            jnp.abs(c12) <= 1.0,
+            jnp.abs(c354) <= 1.0,
+            in_range[..., 0],
+            in_range[..., 1],
+            in_range[..., 2],
+            t5 - t1 <= C.TOE_IN_MAX,
+            cross <= tol,
+        ],
+        axis=-1,
+    )
+    return angles, ok
+
+
+def leg_ik(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Motor angles for a foot position, on the robot's branch (seed 000, Algorithm 2).
+
+    foot: (..., 3) foot in the shoulder frame [m] -> (angles (..., 3) (t0, t1, t5) [rad],
+    valid (...) bool). valid is False where the target is out of reach, beyond a joint limit
+    (constants.MOTOR_RANGES), violates the toe-in guard or would need the other assembly mode.
+
+    Never NaN: acos arguments are clamped to [-1, 1], so an out-of-reach target gets the nearest
+    clamped configuration (the chain stretched or folded toward it); angles beyond a joint limit
+    are returned as computed, not clipped. Gradients are finite everywhere (see `safe_acos`).
+    """
+    foot = jnp.asarray(foot)
+    if not jnp.issubdtype(foot.dtype, jnp.floating):
+        foot = foot.astype(jnp.result_type(float))
+    angles, ok = _ik_solve(foot)
+    return angles, jnp.all(ok, axis=-1)
+
+
+_ik_solve_jit = jax.jit(_ik_solve)
+
+
+def leg_ik_checked(foot) -> np.ndarray:
+    """Eager IK that raises on bad targets: numpy (..., 3) [m] -> numpy (..., 3) [rad], float64.
+
+    Raises ValueError naming the first failing target (in m) and the reason. Not for use in jit.
+    """
+    foot = np.asarray(foot, dtype=np.float64)
+    if foot.shape[-1:] != (3,):
+        raise ValueError(f"foot must have shape (..., 3), got {foot.shape}")
+    with jax.enable_x64(True):
+        angles, ok = _ik_solve_jit(jnp.asarray(foot))
+        angles, ok = np.asarray(angles), np.asarray(ok)
+    bad = ~np.all(ok, axis=-1)
+    if np.any(bad):
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        reasons = [r for r, good in zip(IK_CHECKS, ok[idx], strict=True) if not good]
+        where = f" (index {idx})" if idx else ""
+        raise ValueError(
+            f"leg IK target {foot[idx].tolist()} m{where} is invalid: {'; '.join(reasons)}"
+            f" (angles would be {angles[idx].tolist()} rad)"
+        )
+    return angles
+
+
+# --- differential kinematics (seed 000, Algorithm 3) ------------------------------------------
+
+
+def leg_jacobian(angles: jax.Array) -> jax.Array:
+    """Exact foot Jacobian d foot / d angles by forward-mode autodiff.
+
+    angles: (..., 3) (t0, t1, t5) [rad] -> (..., 3, 3) [m/rad], J[..., i, j] = d foot_i / d t_j.
+    Finite everywhere; at the chain's lock-up pose (p2, p3, p4 collinear) the true derivative is
+    infinite and this one is large (capped by `safe_acos`).
+    """
+    angles = jnp.asarray(angles)
+    return jnp.vectorize(jax.jacfwd(leg_fk), signature="(3)->(3,3)")(angles)
+
+
+def leg_jacobian_fd(angles: jax.Array, delta: float = 1e-6) -> jax.Array:
+    """The seed's numerical Jacobian: forward differences (f(t + delta e_i) - f(t)) / delta.
+
+    angles: (..., 3) [rad] -> (..., 3, 3) [m/rad]. Truncation error O(delta); in float32 the
+    default delta is near the angles' rounding step, so use float64 (or a larger delta) there.
+    """
+    angles = jnp.asarray(angles)
+    eye = jnp.eye(3, dtype=angles.dtype) * delta
+    f0 = leg_fk(angles)[..., :, None]  # (..., 3, 1)
+    f1 = leg_fk(angles[..., None, :] + eye)  # (..., 3 perturbations, 3 coords)
+    return (jnp.swapaxes(f1, -1, -2) - f0) / delta
+
+
+def joint_velocities(angles: jax.Array, foot_vel: jax.Array, damping: float = 1e-3) -> jax.Array:
+    """Motor velocities for a foot velocity by damped least squares (seed 000, Algorithm 3).
+
+    angles: (..., 3) [rad], foot_vel: (..., 3) [m/s] in the shoulder frame -> (..., 3) [rad/s],
+    J^T (J J^T + damping^2 I)^-1 v. damping [m/rad] keeps the result finite and bounded by
+    |v| / (2 damping) at singular poses (e.g. the leg fully stretched); away from them it
+    changes the answer by a relative O((damping / sigma_min)^2), about 1e-4 for sigma_min = 0.1.
+    """
+    angles = jnp.asarray(angles)
+    foot_vel = jnp.asarray(foot_vel, angles.dtype)
+    jac = leg_jacobian(angles)
+    jjt = jac @ jnp.swapaxes(jac, -1, -2) + damping**2 * jnp.eye(3, dtype=angles.dtype)
+    y = jnp.linalg.solve(jjt, foot_vel[..., None])
+    return (jnp.swapaxes(jac, -1, -2) @ y)[..., 0]
