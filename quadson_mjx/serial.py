@@ -44,19 +44,24 @@ Mapping to the seeds:
     down, positive forward; theta3 the knee bend. Caramel's joint commands (its code, robots.md):
     roll = theta1, pitch = -(theta2 + pi/4) = q2 - pi/4, knee = -(theta3 - pi/2) = q3 + pi/2.
     The published Caramel IK vectors are these commands (see `caramel_commands`).
-    Seed 003 prints eq. 5-10 in a frame with x down and z forward and garbles eq. 5; its robot code
-    (x forward, y left, z up, as here) reads theta1 = atan2(y, -z) - atan2(s L1, a), a = sqrt(y^2 + z^2
+    Seed 003 prints eq. 6-10 in a frame with x down and z forward (a = sqrt(x^2 + y^2 - L1^2),
+    atan2(a, z)); eq. 5 is garbled there (arctan(x / y): inverted ratio, and no side sign on L1). The
+    robot's code (x forward, y left, z up, as here; the frame of the published vectors) reads theta1 = atan2(y, -z) - atan2(s L1, a), a = sqrt(y^2 + z^2
     - L1^2), theta2 = pi/2 - atan2(a, x) - acos(A), theta3 = atan2(sqrt(1 - B^2), B). Eq. 7's
     single-argument arctan would put theta3 in the wrong quadrant for B < 0 (knee bent past 90 deg).
   * seed 001 (Weefee): its theta3 = 180 deg - beta is the knee bend, -q3. Its coxa yaws about the
-    vertical axis, unlike this roll axis; only its lengths are used here (coxa as hip offset).
+    vertical axis, unlike this roll axis; only its lengths are used here (coxa as hip offset). Its
+    FK measures the femur below the horizontal, its IK (90 deg - (gamma + alpha)) from straight up,
+    so its FK does not invert its IK (robots.md); tests use this module's FK.
   * seed 002: its theta1 (in [0, 2 pi), four cases) is q1 mod 2 pi for left legs, reading its printed
     ratio y/z as z/y; its theta3 = pi - R3 is the knee bend, -q3.
 
-Unreachable targets never give NaN inside jit: D^2 is floored (foot put on the hip-offset cylinder)
-and c3 is clipped to [-1 + eps, 1 - eps] (leg straight or folded toward the target), with `valid`
-False. The clip also costs a reachable straight-leg target about sqrt(2 eps) rad of knee angle
-(5e-4 rad in float32) and a negligible foot error (~eps L).
+Unreachable targets never give NaN inside jit: D^2 is floored at (eps (L2 + L3))^2 through a `where`
+(foot put on the hip-offset cylinder) and c3 is clipped to [-1 + eps, 1 - eps] (leg straight or
+folded toward the target), with `valid` False; eps is the dtype's. The clip also costs a reachable
+straight-leg target about sqrt(2 eps) rad of knee angle (5e-4 rad in float32) for a foot error of
+~eps L; only a leg with L2 = L3 folded flat keeps a foot error of L sqrt(2 eps) (59 um for Caramel
+in float32). Gradients stay finite on every boundary (they are the clamped map's: zero across a clip).
 """
 
 from __future__ import annotations
@@ -217,7 +222,7 @@ def serial_ik(target: jax.Array, leg: SerialLeg, side=LEFT, limits=None) -> tupl
 
 
 def serial_ik_checked(target, leg: SerialLeg, side=LEFT, limits=None) -> np.ndarray:
-    """Eager IK that raises on bad targets: (..., 3) [m] -> numpy (..., 3) [rad].
+    """Eager IK that raises on bad targets: (..., 3) [m] -> numpy (..., 3) [rad] (jax default float).
 
     Raises ValueError naming the first failing target (in m) and the reason. Not for use in jit.
     """
