@@ -31,6 +31,11 @@ pairs half a cycle apart and duty > 1/2 the cycle reads: body shift, FR+RL swing
 FL+RR swing (each shift (duty - 1/2) cycle_s, each swing (1 - duty) cycle_s). A stance foot then
 moves only while the other pair is down too; the command is the mean body velocity, so the step
 is -(v + w x r) * cycle_s and the body moves at 1 / (2 duty - 1) times the command while it moves.
+
+Reach (tests/test_gait.py): at their seed speeds walk, trot, pace, bound and trot_discontinuous are
+inside the five-bar's workspace and limits along the whole cycle for every swing shape; the seed's
+gallop is not: its front stance ends at x = 17 cm, y = -20 cm, 26.25 cm from p1, beyond the
+p1-p2-foot chain's 26 cm (invalid for x > 16.61 cm, the last 1.9 % of the front legs' stance).
 """
 
 from __future__ import annotations

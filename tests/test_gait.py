@@ -19,6 +19,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from quadson_mjx import body, fivebar
 from quadson_mjx import constants as C
@@ -137,6 +139,26 @@ def test_leg_phases_stay_below_one():
     # x - floor(x) for x = -1e-9 is 1.0 in float32: the phase must wrap to 0 instead
     ph = np.asarray(G.leg_phases(jnp.asarray([-1e-9, -1e-30, 0.0, 0.8, 1e4], jnp.float32), p))
     assert np.all((ph >= 0.0) & (ph < 1.0))
+
+
+_phases_jit = jax.jit(G.leg_phases)
+_warp_jit = jax.jit(S.warp)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-1e4, 1e4, width=32), st.sampled_from(FIVE))
+def test_leg_phases_in_unit_interval_for_any_time(t, name):
+    ph = np.asarray(_phases_jit(jnp.float32(t), G.gait_params(name)))
+    assert np.all((ph >= 0.0) & (ph < 1.0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.05, 0.95), st.floats(0.05, 0.95), st.floats(0.0, 1.0))
+def test_warp_is_monotone_and_keeps_ends(p_t, p_n, u):
+    u2 = min(u + 1e-3, 1.0)
+    s = np.asarray(_warp_jit(jnp.array([0.0, u, u2, 1.0], jnp.float32), p_t, p_n))
+    np.testing.assert_allclose(s[[0, 3]], [0.0, 1.0], atol=1e-6)
+    assert 0.0 <= s[1] <= s[2] <= 1.0 + 1e-6
 
 
 # --- 2. the seed's paths (Algorithms 6-7) --------------------------------------------------------

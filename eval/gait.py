@@ -1,0 +1,171 @@
+"""Run a gait open loop in the closed-chain model on CPU MuJoCo and report seed 003 Table II's numbers.
+
+    python eval/gait.py                          # trot at its seed speed, 10 s, flat ground
+    python eval/gait.py --gait all               # walk, trot, pace, bound, gallop
+    python eval/gait.py --gait walk --vx 0.05 --vy 0.02 --yaw-rate 0.1 --swing cycloid
+    python eval/gait.py --gait trot_discontinuous --json runs/gait_eval.json
+
+Each control step (50 Hz by default) the gait's foot targets go through the five-bar IK
+(quadson_mjx.gait.motor_targets) into the position-controlled motors; no feedback. The robot starts
+in the model's `home` keyframe and the foot targets blend from the home feet into the gait over
+--ramp-s (smoothstep), so that the first step does not jump. Reported over the trial after the ramp:
+stayed up (base height > 0.1 m and |roll|, |pitch| < 45 deg for the whole trial, ramp included),
+mean forward speed (world x travel / time; the robot starts facing +x) against the command, and
+roll/pitch oscillation as max - min and standard deviation [deg] (seed 003, Table II).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from quadson_mjx import fivebar  # noqa: E402
+from quadson_mjx import gait as G  # noqa: E402
+from quadson_mjx import model as M  # noqa: E402
+from quadson_mjx.swing import SWING_SHAPES  # noqa: E402
+
+FIVE = ("walk", "trot", "pace", "bound", "gallop")
+MIN_HEIGHT_M = 0.1
+MAX_TILT_DEG = 45.0
+
+
+def _rpy(quat) -> np.ndarray:
+    """(w, x, y, z) -> roll, pitch, yaw [rad] of R = Rz Ry Rx."""
+    r = np.zeros(9)
+    mujoco.mju_quat2Mat(r, np.asarray(quat, np.float64))
+    r = r.reshape(3, 3)
+    return np.array(
+        [math.atan2(r[2, 1], r[2, 2]), -math.asin(np.clip(r[2, 0], -1, 1)), math.atan2(r[1, 0], r[0, 0])]
+    )
+
+
+def planned_motor_targets(params, command, times, home_feet, ramp_s):
+    """Open-loop plan: (n,) times [s] -> motor angles (n, 4, 3) [rad], valid (n, 4)."""
+    feet = jax.jit(jax.vmap(G.foot_targets, in_axes=(0, None, None)))(
+        jnp.asarray(times), jnp.asarray(command), params
+    )
+    s = np.clip(np.asarray(times) / ramp_s, 0.0, 1.0) if ramp_s > 0 else np.ones(len(times))
+    alpha = jnp.asarray((s * s * (3 - 2 * s))[:, None, None], jnp.float32)
+    feet = home_feet + alpha * (feet - home_feet)
+    angles, valid = jax.jit(G.motor_targets)(feet)
+    return np.asarray(angles, np.float64), np.asarray(valid)
+
+
+def run_trial(
+    gait: str, command=None, swing=None, duration_s=10.0, ctrl_dt=0.02, ramp_s=1.0, scene="flat"
+) -> dict:
+    """One open-loop trial -> dict of results (SI, angles in degrees where named _deg)."""
+    params = G.gait_params(gait) if swing is None else G.gait_params(gait, swing=swing)
+    if command is None:
+        command = (float(G.seed_speed(params)), 0.0, 0.0)
+    model = M.load_model(scene)
+    ids = M.model_ids(model)
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home"))
+    mujoco.mj_forward(model, data)
+    n_sub = round(ctrl_dt / model.opt.timestep)
+    if abs(n_sub * model.opt.timestep - ctrl_dt) > 1e-9:
+        raise ValueError(f"ctrl_dt {ctrl_dt} s is not a multiple of the timestep {model.opt.timestep} s")
+    n = round(duration_s / ctrl_dt)
+    times = np.arange(n) * ctrl_dt
+    home_angles = M.home_ctrl(model)[ids.motor_actuator].reshape(4, 3)
+    home_feet = fivebar.leg_fk(jnp.asarray(home_angles, jnp.float32))
+    angles, valid = planned_motor_targets(params, np.asarray(command, np.float32), times, home_feet, ramp_s)
+
+    root = ids.root_qposadr
+    pos, rpy = np.zeros((n + 1, 3)), np.zeros((n + 1, 3))
+    pos[0], rpy[0] = data.qpos[root : root + 3], _rpy(data.qpos[root + 3 : root + 7])
+    warnings_before = int(np.sum(data.warning.number))
+    for k in range(n):
+        data.ctrl[ids.motor_actuator] = angles[k].reshape(12)
+        mujoco.mj_step(model, data, nstep=n_sub)
+        pos[k + 1], rpy[k + 1] = data.qpos[root : root + 3], _rpy(data.qpos[root + 3 : root + 7])
+
+    tilt_deg = np.degrees(np.abs(rpy[:, :2]))
+    ok = (pos[:, 2] > MIN_HEIGHT_M) & np.all(tilt_deg < MAX_TILT_DEG, axis=1)
+    up = bool(np.all(ok))
+    w = times >= ramp_s  # the window after the ramp (state k+1 follows control step k)
+    win_pos, win_rpy = pos[1:][w], np.degrees(rpy[1:][w])
+    span = times[w][-1] + ctrl_dt - ramp_s if np.any(w) else float("nan")
+    start_pos = pos[1:][times < ramp_s][-1] if ramp_s > 0 else pos[0]
+    return {
+        "gait": gait,
+        "swing": SWING_SHAPES[int(params.swing)],
+        "command": [float(c) for c in command],
+        "duration_s": duration_s,
+        "stayed_up": up,
+        "fell_at_s": None if up else float(np.argmin(ok) * ctrl_dt),
+        "mean_vx": float((win_pos[-1, 0] - start_pos[0]) / span),
+        "mean_vy": float((win_pos[-1, 1] - start_pos[1]) / span),
+        "yaw_change_deg": float(win_rpy[-1, 2] - win_rpy[0, 2]),
+        "min_height_m": float(pos[:, 2].min()),
+        "roll_range_deg": float(np.ptp(win_rpy[:, 0])),
+        "roll_std_deg": float(np.std(win_rpy[:, 0])),
+        "pitch_range_deg": float(np.ptp(win_rpy[:, 1])),
+        "pitch_std_deg": float(np.std(win_rpy[:, 1])),
+        "ik_invalid_fraction": float(np.mean(~valid)),
+        "mujoco_warnings": int(np.sum(data.warning.number)) - warnings_before,
+    }
+
+
+def _table(rows) -> str:
+    head = "gait     swing        cmd vx  mean vx  up (fell)  min z   Δroll  σroll  Δpitch σpitch  IK bad"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        up = "yes" if r["stayed_up"] else f"NO {r['fell_at_s']:4.1f} s"
+        lines.append(
+            f"{r['gait'][:8]:8s} {r['swing']:11s} {r['command'][0]:7.3f} {r['mean_vx']:8.3f}  {up:9s} "
+            f"{r['min_height_m']:6.3f} {r['roll_range_deg']:7.2f} {r['roll_std_deg']:6.2f} "
+            f"{r['pitch_range_deg']:7.2f} {r['pitch_std_deg']:6.2f} {100 * r['ik_invalid_fraction']:6.2f}%"
+        )
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--gait", default="trot", choices=[*G.GAIT_NAMES, "all"])
+    p.add_argument("--swing", default=None, choices=SWING_SHAPES, help="default: the gait's own")
+    p.add_argument("--vx", type=float, default=None, help="m/s; default: the gait's seed speed")
+    p.add_argument("--vy", type=float, default=0.0)
+    p.add_argument("--yaw-rate", type=float, default=0.0)
+    p.add_argument("--duration-s", type=float, default=10.0)
+    p.add_argument("--ctrl-dt", type=float, default=0.02)
+    p.add_argument("--ramp-s", type=float, default=1.0)
+    p.add_argument("--scene", default="flat", choices=sorted(M.SCENES))
+    p.add_argument("--json", default=None, help="write the results here")
+    args = p.parse_args(argv)
+
+    rows = []
+    for gait in FIVE if args.gait == "all" else (args.gait,):
+        params = G.gait_params(gait)
+        vx = float(G.seed_speed(params)) if args.vx is None else args.vx
+        rows.append(
+            run_trial(
+                gait,
+                (vx, args.vy, args.yaw_rate),
+                args.swing,
+                args.duration_s,
+                args.ctrl_dt,
+                args.ramp_s,
+                args.scene,
+            )
+        )
+    print(_table(rows))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(rows, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
