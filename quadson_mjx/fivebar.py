@@ -27,8 +27,8 @@ from quadson_mjx import constants as C
 class LegPoints(NamedTuple):
     """Joint positions of one leg in the shoulder frame [m], each (..., 3), and link angles [rad].
 
-    theta2, theta4: absolute in-plane angles of links p2->p3 and p4->p3, measured like t1
-    (p3 = p2 + L2 (cos theta2, -sin theta2) in the leg plane). knee2 = theta2 - t1 and
+    theta2, theta4: absolute in-plane angles of links p2->p3 and p4->p3 in (-pi, pi], measured
+    like t1 (p3 = p2 + L2 (cos theta2, -sin theta2) in the leg plane). knee2 = theta2 - t1 and
     knee4 = theta4 - t5, wrapped to (-pi, pi]: the angles that passive hinges at p2 and p4 with
     axis -z read when the motor hinges also have axis -z and every link lies along +x at zero.
     """
@@ -49,23 +49,27 @@ class LegPoints(NamedTuple):
 
 
 @jax.custom_jvp
-def safe_acos(x: jax.Array) -> jax.Array:
-    """acos(clip(x, -1, 1)) with a finite derivative everywhere.
+def _sin_acos(x: jax.Array) -> jax.Array:
+    """sin(acos(x)) = sqrt(1 - x^2) for x clamped to [-1, 1], with a finite derivative everywhere.
 
-    The true derivative -1/sqrt(1 - x^2) is infinite at x = +-1 (the workspace boundary and the
-    stretched-leg singularity); here it is capped at -1/sqrt(eps) and is zero outside [-1, 1],
-    where the value is clamped.
+    Together with cos = clip(x, -1, 1) it turns a law-of-cosines angle into a rotation without
+    evaluating acos, sin or cos: the kinematics needs one atan2 per output angle and no other
+    transcendental (about twice the CPU throughput of acos + atan2 + sin/cos). The derivative
+    -x / sqrt(1 - x^2) is infinite at x = +-1 (the workspace boundary, the stretched leg, the
+    chain's lock-up); here it is capped at 1/sqrt(eps) there and is zero outside [-1, 1], where
+    the value is clamped.
     """
-    return jnp.arccos(jnp.clip(x, -1.0, 1.0))
+    x = jnp.clip(x, -1.0, 1.0)
+    return jnp.sqrt(jnp.maximum(1.0 - x * x, 0.0))
 
 
-@safe_acos.defjvp
-def _safe_acos_jvp(primals, tangents):
+@_sin_acos.defjvp
+def _sin_acos_jvp(primals, tangents):
     (x,), (dx,) = primals, tangents
     eps = jnp.finfo(jnp.result_type(x)).eps
-    inside = jnp.abs(x) < 1.0
-    d = -jax.lax.rsqrt(jnp.maximum(1.0 - jnp.clip(x, -1.0, 1.0) ** 2, eps))
-    return safe_acos(x), jnp.where(inside, d, 0.0) * dx
+    xc = jnp.clip(x, -1.0, 1.0)
+    d = -xc * jax.lax.rsqrt(jnp.maximum(1.0 - xc**2, eps))
+    return _sin_acos(x), jnp.where(jnp.abs(x) < 1.0, d, 0.0) * dx
 
 
 def _safe_norm(v: jax.Array) -> jax.Array:
@@ -107,22 +111,26 @@ def _to_3d(p: jax.Array, t0: jax.Array) -> jax.Array:
 
 
 def _planar_points(t1: jax.Array, t5: jax.Array):
-    """Planar five-bar solution: p2, p3, p4, foot (..., 2) and theta2, theta4 (...)."""
-    p2 = C.L1 * _cw_dir(t1)
-    p5 = jnp.stack([jnp.full_like(t1, C.L0), jnp.zeros_like(t1)], axis=-1)
-    p4 = p5 + C.L5 * _cw_dir(t5)
+    """Planar five-bar solution: p2, p3, p4, foot (..., 2) and (cos, sin) of theta2 (...)."""
+    c1, s1 = jnp.cos(t1), jnp.sin(t1)
+    c5, s5 = jnp.cos(t5), jnp.sin(t5)
+    p2 = C.L1 * jnp.stack([c1, -s1], axis=-1)
+    p4 = jnp.stack([C.L0 + C.L5 * c5, -C.L5 * s5], axis=-1)
     d24 = p4 - p2
     l24 = _safe_norm(d24)
-    # Angle at p2 between p2->p4 and p2->p3 (triangle p2 p3 p4, law of cosines). Algorithm 1 writes
-    # theta2 = acos(.) + acos(angle p1-p2-p4) - (pi - t1): that sum equals the clockwise angle of
-    # p2->p4 only while p4 lies clockwise of p2->p1; atan2 gives that angle on every pose.
-    alpha = safe_acos((C.L2**2 + l24**2 - C.L4**2) / (2.0 * C.L2 * l24))
-    theta2 = _cw_angle(d24) + alpha
-    u2 = _cw_dir(theta2)
+    # theta2 = (clockwise angle of p2->p4) + alpha, alpha the angle at p2 of the triangle p2 p3 p4
+    # (law of cosines). Algorithm 1 writes theta2 = acos(.) + acos(angle p1-p2-p4) - (pi - t1):
+    # that sum is the angle of p2->p4 only while p4 lies clockwise of p2->p1 (it breaks for
+    # t1 > ~3.64 at t5 = 1, inside the limits); the direction of p2->p4 holds on every pose.
+    # The sum of angles is taken as a rotation: cos/sin of the sum from those of the parts.
+    cd, sd = d24[..., 0] / l24, -d24[..., 1] / l24
+    ca_raw = (C.L2**2 + l24**2 - C.L4**2) / (2.0 * C.L2 * l24)
+    ca, sa = jnp.clip(ca_raw, -1.0, 1.0), _sin_acos(ca_raw)
+    c2, s2 = cd * ca - sd * sa, sd * ca + cd * sa
+    u2 = jnp.stack([c2, -s2], axis=-1)
     p3 = p2 + C.L2 * u2
     foot = p2 + (C.L2 + C.L3) * u2
-    theta4 = _cw_angle(p3 - p4)
-    return p2, p3, p4, foot, theta2, theta4
+    return p2, p3, p4, foot, c2, s2
 
 
 def leg_points(angles: jax.Array) -> LegPoints:
@@ -132,7 +140,9 @@ def leg_points(angles: jax.Array) -> LegPoints:
     if not jnp.issubdtype(angles.dtype, jnp.floating):
         angles = angles.astype(jnp.result_type(float))
     t0, t1, t5 = angles[..., 0], angles[..., 1], angles[..., 2]
-    p2, p3, p4, foot, theta2, theta4 = _planar_points(t1, t5)
+    p2, p3, p4, foot, c2, s2 = _planar_points(t1, t5)
+    theta2 = jnp.arctan2(s2, c2)
+    theta4 = _cw_angle(p3 - p4)
     zeros = jnp.zeros_like(angles)
     p5 = zeros.at[..., 0].set(C.L0)
     return LegPoints(
@@ -204,17 +214,24 @@ IK_CHECKS: tuple[str, ...] = (
 def _ik_solve(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Algorithm 2 with its failure flags: foot (..., 3) [m] -> angles (..., 3), ok (..., len(IK_CHECKS))."""
     x, y, z = foot[..., 0], foot[..., 1], foot[..., 2]
-    # Step 1-2: the sign of robots.md; then y' = -sqrt(y^2 + z^2) (the foot below the motor axis).
+    # Step 1-2: the sign of robots.md. With t0 = -atan2(z, -y), the in-plane
+    # y' = y cos t0 + z sin t0 is exactly -sqrt(y^2 + z^2): the foot below the motor axis.
     t0 = -_safe_atan2(z, -y)
-    yp = y * jnp.cos(t0) + z * jnp.sin(t0)
-    pe = jnp.stack([x, yp], axis=-1)
-    # Step 3: motor 1 from the triangle p1, p2, foot (L1, L2 + L3, |pe|).
+    r = _safe_norm(foot[..., 1:])
+    pe = jnp.stack([x, -r], axis=-1)
+    # Step 3: motor 1 from the triangle p1, p2, foot (L1, L2 + L3, |pe|):
+    # t1 = (clockwise angle of p1->foot) + acos(c12), taken as a rotation (see `_sin_acos`).
     l1e = _safe_norm(pe)
     l23 = C.L2 + C.L3
     c12 = (C.L1**2 + l1e**2 - l23**2) / (2.0 * C.L1 * l1e)
-    t1 = _cw_angle(pe) + safe_acos(c12)
+    ce, se = x / l1e, r / l1e
+    cb, sb = jnp.clip(c12, -1.0, 1.0), _sin_acos(c12)
+    c1, s1 = ce * cb - se * sb, se * cb + ce * sb
+    # Both parts lie in [0, pi], so t1 is in [0, 2 pi), where the limits [0.25 pi, 1.2 pi] live.
+    t1 = jnp.arctan2(s1, c1)
+    t1 = jnp.where(t1 < 0.0, t1 + 2.0 * jnp.pi, t1)
     # Step 4: p3 divides p2 -> foot in the ratio L2 : L3.
-    p2 = C.L1 * _cw_dir(t1)
+    p2 = C.L1 * jnp.stack([c1, -s1], axis=-1)
     p3 = (pe * C.L2 + p2 * C.L3) / l23
     # Step 5: motor 5 from the triangle p5, p4, p3 (L5, L4, |p3 - p5|). The seed's
     # theta5 = pi - (theta350 + theta354) is the clockwise angle of p5->p3 minus theta354.
@@ -222,8 +239,10 @@ def _ik_solve(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
     d53 = p3 - p5
     l35 = _safe_norm(d53)
     c354 = (l35**2 + C.L5**2 - C.L4**2) / (2.0 * l35 * C.L5)
-    t5 = _cw_angle(d53) - safe_acos(c354)
-    t5 = jnp.where(t5 <= -jnp.pi, t5 + 2.0 * jnp.pi, t5)
+    cd, sd = d53[..., 0] / l35, -d53[..., 1] / l35
+    cb, sb = jnp.clip(c354, -1.0, 1.0), _sin_acos(c354)
+    c5, s5 = cd * cb + sd * sb, sd * cb - cd * sb
+    t5 = jnp.arctan2(s5, c5)  # in (-pi, pi]
     angles = jnp.stack([t0, t1, t5], axis=-1)
 
     lo = jnp.asarray(C.MOTOR_RANGES[:, 0], foot.dtype)
@@ -231,7 +250,7 @@ def _ik_solve(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
     in_range = (angles >= lo) & (angles <= hi)
     # FK (Algorithm 1) puts p3 clockwise of p2 -> p4; a solution with p3 on the other side is a
     # pose of the other assembly mode, which the robot never reaches.
-    p4 = p5 + C.L5 * _cw_dir(t5)
+    p4 = p5 + C.L5 * jnp.stack([c5, -s5], axis=-1)
     d24, d23 = p4 - p2, p3 - p2
     cross = d24[..., 0] * d23[..., 1] - d24[..., 1] * d23[..., 0]
     tol = 64 * jnp.finfo(foot.dtype).eps * C.L2 * (C.L2 + C.L4)
@@ -259,7 +278,7 @@ def leg_ik(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
 
     Never NaN: acos arguments are clamped to [-1, 1], so an out-of-reach target gets the nearest
     clamped configuration (the chain stretched or folded toward it); angles beyond a joint limit
-    are returned as computed, not clipped. Gradients are finite everywhere (see `safe_acos`).
+    are returned as computed, not clipped. Gradients are finite everywhere (see `_sin_acos`).
     """
     foot = jnp.asarray(foot)
     if not jnp.issubdtype(foot.dtype, jnp.floating):
@@ -302,7 +321,7 @@ def leg_jacobian(angles: jax.Array) -> jax.Array:
 
     angles: (..., 3) (t0, t1, t5) [rad] -> (..., 3, 3) [m/rad], J[..., i, j] = d foot_i / d t_j.
     Finite everywhere; at the chain's lock-up pose (p2, p3, p4 collinear) the true derivative is
-    infinite and this one is large (capped by `safe_acos`).
+    infinite and this one is large (capped by `_sin_acos`).
     """
     angles = jnp.asarray(angles)
     return jnp.vectorize(jax.jacfwd(leg_fk), signature="(3)->(3,3)")(angles)
