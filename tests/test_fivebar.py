@@ -357,6 +357,19 @@ def test_jacobian_matches_central_differences():
         assert np.median(err_fd) < 1e-5
 
 
+def test_ik_jacobian_is_the_inverse_of_the_fk_jacobian():
+    # IK(FK(t)) = t on the branch, so d IK / d foot = J^-1 wherever J is invertible.
+    a = _valid_poses(256, seed=8)
+    with jax.enable_x64(True):
+        back, valid = map(np.asarray, ik(np.asarray(fk(a))))
+        j_ik = np.asarray(jax.jit(jax.vmap(jax.jacfwd(lambda f: fb.leg_ik(f)[0])))(np.asarray(fk(back))))
+        j_fk = np.asarray(jac(back))
+    sigma_min = np.linalg.svd(j_fk, compute_uv=False)[:, -1]
+    keep = valid & (sigma_min > 0.01)  # m/rad
+    assert keep.mean() > 0.8
+    np.testing.assert_allclose((j_ik @ j_fk)[keep], np.broadcast_to(np.eye(3), (keep.sum(), 3, 3)), atol=1e-8)
+
+
 def test_joint_velocities_invert_the_jacobian(float_dtype):
     a = _valid_poses(256, seed=5).astype(float_dtype)
     rng = np.random.default_rng(6)
