@@ -117,3 +117,85 @@ FEET: tuple[str, ...] = tuple(foot_name(leg) for leg in LEGS)
 ROOT_BODY = "base"
 IMU_SITE = "imu"
 HOME_KEYFRAME = "home"
+
+
+# ==================================================================================================
+# Physics of the MuJoCo model (models/quadson/): masses, inertias, motor model, gains, contact and
+# solver settings. The robot's public URDF has placeholder masses (7.8 kg in all) and no torque or
+# speed limits, so the numbers below are chosen to be plausible for a ~3 kg 3D-printed robot of
+# this size and are meant to be randomized (scale BASE_MASS, HIP_MASS, LINK_MASSES, MOTOR_KP, ...).
+# models/quadson/README.md says where each number came from.
+# ==================================================================================================
+
+# --- masses [kg] (total 3.28 kg) ---
+# base: printed frame ~0.42, 6S 2200 mAh LiPo ~0.35, computer + IMU + 12 motor drivers ~0.25, and
+# the four abduction motors (motor 0, mounted on the frame) 4 x 0.12.
+BASE_MASS = 1.5
+# hip assembly (rotates with motor 0): the motor-1 and motor-5 actuators (2 x 0.12) + printed housing.
+HIP_MASS = 0.3
+# printed PLA links with bearings and screws: link 1 (p1-p2), link 2 (p2-p3-foot, with the rubber
+# foot), link 4 (p4-p3), link 5 (p5-p4).
+LINK_MASSES = {"link1": 0.03, "link2": 0.05, "link4": 0.035, "link5": 0.03}
+TOTAL_MASS = BASE_MASS + NUM_LEGS * (HIP_MASS + sum(LINK_MASSES.values()))
+
+# --- shapes used for inertia, collision and drawing [m] ---
+BASE_HALF_SIZE = (0.17, 0.08, 0.04)  # box around the frame; its inertia is a solid box's
+HIP_HALF_SIZE = (L0 / 2 + 0.025, 0.025, 0.02)  # box spanning both hip motors (leg frame x, y, z)
+LINK_RADIUS = 0.006  # capsules drawn for the links; links are thin rods for inertia
+FOOT_RADIUS = 0.015  # rubber foot sphere at the end of link 2
+
+# --- motor model (all 12 motors identical) ---
+# A 5010-size brushless outrunner (KV 200 rpm/V) behind an 8:1 printed planetary gearbox, driven by
+# a field-oriented-control board in position mode: the class of actuator the robot's firmware
+# addresses (CAN position/velocity/current goals, gear ratio and pole pairs as parameters).
+MOTOR_KV_RPM_PER_V = 200.0
+MOTOR_KT = 60.0 / (2.0 * math.pi * MOTOR_KV_RPM_PER_V)  # torque constant [N m / A] = 0.0477
+MOTOR_PEAK_CURRENT = 10.0  # [A], driver limit
+GEAR_RATIO = 8.0
+GEAR_EFFICIENCY = 0.9
+SUPPLY_VOLTAGE = 24.0  # [V], 6S LiPo
+ROTOR_INERTIA = 2.5e-5  # [kg m^2], 5010 rotor: ~45 g ring at ~23 mm radius
+# output torque limit [N m] = 0.0477 * 10 * 8 * 0.9 = 3.44
+MOTOR_EFFORT_LIMIT = MOTOR_KT * MOTOR_PEAK_CURRENT * GEAR_RATIO * GEAR_EFFICIENCY
+# no-load output speed [rad/s] = 200 rpm/V * 24 V / 8 = 62.8; at full torque the back-EMF leaves
+# about half of it: 31.4 rad/s. MuJoCo has no velocity limit; the env may penalize |qvel| above it.
+MOTOR_VELOCITY_LIMIT = 0.5 * MOTOR_KV_RPM_PER_V * SUPPLY_VOLTAGE * 2.0 * math.pi / 60.0 / GEAR_RATIO
+MOTOR_ARMATURE = ROTOR_INERTIA * GEAR_RATIO**2  # reflected rotor inertia [kg m^2] = 1.6e-3
+MOTOR_DAMPING = 0.01  # gearbox viscous friction [N m s / rad]
+# Position-servo gains as mjlab derives them: a second-order joint of inertia MOTOR_ARMATURE
+# tuned to natural frequency f_n and damping ratio zeta: kp = J w^2, kd = 2 zeta J w.
+MOTOR_NATURAL_FREQ = 2.0 * math.pi * 20.0  # [rad/s]
+MOTOR_DAMPING_RATIO = 1.0
+MOTOR_KP = MOTOR_ARMATURE * MOTOR_NATURAL_FREQ**2  # [N m / rad]
+MOTOR_KD = 2.0 * MOTOR_DAMPING_RATIO * MOTOR_ARMATURE * MOTOR_NATURAL_FREQ  # [N m s / rad]
+
+# --- passive hinges at p2 and p4 (printed bearings, no rotor) ---
+PASSIVE_ARMATURE = 1e-5  # [kg m^2], small numerical armature that helps the closed loop
+PASSIVE_DAMPING = 0.001  # [N m s / rad]
+
+# --- ground contact (seed 000 section 8: lateral 0.8, spinning 0.1, rolling 0.01, restitution 0.2) ---
+# Bullet and MuJoCo both bound the spinning/rolling friction torque by coefficient x normal force,
+# so the coefficients carry over as lengths [m]; with condim 3 (the MJX choice) only sliding acts.
+GROUND_FRICTION = (0.8, 0.1, 0.01)  # (sliding, torsional [m], rolling [m])
+RESTITUTION = 0.2
+# MuJoCo has no restitution: a contact is a damped spring whose damping ratio zeta sets the bounce,
+# e = exp(-pi zeta / sqrt(1 - zeta^2)), so zeta = -ln e / sqrt(pi^2 + ln^2 e) = 0.456 for e = 0.2.
+CONTACT_DAMPING_RATIO = -math.log(RESTITUTION) / math.sqrt(math.pi**2 + math.log(RESTITUTION) ** 2)
+CONTACT_TIMECONST = 0.02  # [s], MuJoCo's default contact stiffness time constant
+CONTACT_CONDIM = 3
+
+# --- solver (chosen by measurement, models/quadson/README.md) ---
+SIM_DT = 0.004  # [s]; 5 physics steps per 0.02 s control step
+SOLVER_ITERATIONS = 1
+SOLVER_LS_ITERATIONS = 5
+INTEGRATOR = "Euler"
+CLOSURE_SOLREF = (0.008, 1.0)  # (time constant [s] = 2 SIM_DT, the stiffest MuJoCo allows; damping ratio)
+# impedance 0.9999 (MuJoCo's maximum): the closure's softness R = (1 - d) / d x (constraint-space
+# inverse mass) is large for these light links, and d = 0.95 left 0.4-0.7 mm of sag standing.
+CLOSURE_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
+
+# --- rough terrain (seed 003's "ground formed by small loose stones") ---
+ROUGH_SIZE = (4.0, 4.0)  # half extents [m]
+ROUGH_CELL = 0.04  # grid step [m]
+ROUGH_MAX_HEIGHT = 0.04  # relief [m]
+ROUGH_SEED = 3
