@@ -330,7 +330,7 @@ def rough_heights() -> np.ndarray:
     y = np.linspace(-hy, hy, nrow)[:, None]
     x = np.linspace(-hx, hx, ncol)[None, :]
     h = np.zeros((nrow, ncol))
-    n_stones = int(0.6 * (2 * hx) * (2 * hy) / 0.06**2)  # ~60% cover by 6 cm stones
+    n_stones = int(0.6 * (2 * hx) * (2 * hy) / 0.06**2)  # 0.6 stones per 6 x 6 cm: ~1/3 of the ground
     cx = rng.uniform(-hx, hx, n_stones)
     cy = rng.uniform(-hy, hy, n_stones)
     rad = rng.uniform(0.015, 0.04, n_stones)
