@@ -1,0 +1,291 @@
+"""The locomotion environment: seed 000's RL formulation on the closed-chain model, in MJX.
+
+A policy adds foot offsets to a classical gait (seed 000 section 8): each control step the gait gives
+foot targets in the shoulder frames, the action adds up to +-5 cm per axis, the five-bar inverse
+kinematics turns them into the 12 motor position targets, and MJX steps the closed-chain model
+several physics steps. Pure `reset(rng)` / `step(state, action)` in brax's `Env` interface, so
+`brax.training.agents.ppo.train` takes it directly (wrap it with `quadson_mjx.wrappers`).
+
+Safety inside jit: a non-finite or exploded physics state ends the episode, its observation and
+reward are replaced by zeros, and `metrics["nan_reset"]` counts it. An unreachable foot target is
+clamped by the inverse kinematics and counted in `metrics["ik_invalid_legs"]`; it never becomes NaN.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from brax.envs.base import Env, State
+from mujoco import mjx
+
+from quadson_mjx import gait, rewards
+from quadson_mjx import model as qmodel
+from quadson_mjx.config import freeze
+from quadson_mjx.env_config import env_config
+
+EXPLODED_SPEED = 50.0  # m/s or rad/s: no Quadson state is this fast; treat it as a blown-up solve
+
+
+def quat_to_rpy(quat):
+    """quat (..., 4) wxyz -> (..., 3) roll, pitch, yaw [rad], ZYX convention."""
+    w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
+    roll = jnp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return jnp.stack([roll, pitch, yaw], axis=-1)
+
+
+def quat_rotate_inverse(quat, vec):
+    """Rotates world-frame vec (..., 3) into the frame of quat (..., 4, wxyz)."""
+    w, u = quat[..., :1], -quat[..., 1:]
+    t = 2.0 * jnp.cross(u, vec)
+    return vec + w * t + jnp.cross(u, t)
+
+
+class QuadsonEnv(Env):
+    """Quadson on flat or rough ground; immutable after __init__."""
+
+    def __init__(self, config=None):
+        cfg = env_config() if config is None else config
+        self._config = freeze(cfg)
+        self._mj_model = qmodel.load_model(cfg.terrain)
+        self.sys = mjx.put_model(self._mj_model)
+        sim_dt = float(self._mj_model.opt.timestep)
+        n_sub = round(cfg.ctrl_dt / sim_dt)
+        if n_sub < 1 or abs(n_sub * sim_dt - cfg.ctrl_dt) > 1e-9:
+            raise ValueError(f"ctrl_dt {cfg.ctrl_dt} s is not a multiple of the model timestep {sim_dt} s")
+        self._n_substeps = n_sub
+        self._ctrl_dt = float(cfg.ctrl_dt)
+        self.episode_length = int(round(cfg.episode_length_s / cfg.ctrl_dt))
+
+        ids = qmodel.model_ids(self._mj_model)
+        self._motor_qpos = jnp.asarray(ids.motor_qposadr)  # (12,) LEGS x MOTORS order
+        self._motor_qvel = jnp.asarray(ids.motor_dofadr)
+        self._actuator_of_motor = jnp.asarray(ids.motor_actuator)  # (12,) ctrl index of each motor
+        self._base_body = ids.base_body
+        self._home_qpos = jnp.asarray(qmodel.home_qpos(self._mj_model))
+        self._home_ctrl = jnp.asarray(qmodel.home_ctrl(self._mj_model))
+        planar = qmodel.home_foot_targets()  # (4, 2) x, y in the leg plane
+        self._home_feet = jnp.asarray(np.pad(planar, ((0, 0), (0, 1))), jnp.float32)  # (4, 3), z = 0
+        self._gait = gait.gait_params(cfg.gait, swing=cfg.swing)
+        self._seed_speed = float(gait.seed_speed(self._gait))
+        self._root_q = ids.root_qposadr
+        self._root_v = ids.root_dofadr
+        if (self._root_q, self._root_v) != (0, 0):
+            raise ValueError("the base's free joint must come first in qpos/qvel")
+        self._episode_latency_max = int(round(cfg.randomization.latency_s[1] / sim_dt))
+
+    # --- brax Env interface -------------------------------------------------------------------
+    @property
+    def observation_size(self) -> int:
+        return 29 + (3 if self._config.command_tracking else 0)
+
+    @property
+    def action_size(self) -> int:
+        return 12 + (2 if self._config.gait_action else 0)
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    @property
+    def config(self):
+        return self._config
+
+    @property
+    def mj_model(self) -> mujoco.MjModel:
+        return self._mj_model
+
+    @property
+    def ctrl_dt(self) -> float:
+        return self._ctrl_dt
+
+    def episode_info(self, rng):
+        """What is sampled anew for every episode: command, latency, push timer. rng: key."""
+        cfg = self._config
+        k_cmd, k_lat, k_push, k_noise = jax.random.split(rng, 4)
+        if cfg.command_tracking:
+            lo = jnp.array([cfg.command_range.vx[0], cfg.command_range.vy[0], cfg.command_range.yaw_rate[0]])
+            hi = jnp.array([cfg.command_range.vx[1], cfg.command_range.vy[1], cfg.command_range.yaw_rate[1]])
+            command = jax.random.uniform(k_cmd, (3,), minval=lo, maxval=hi)
+        else:
+            command = jnp.array([self._seed_speed, 0.0, 0.0])
+        if cfg.randomize:
+            lo_s, hi_s = cfg.randomization.latency_s
+            latency = jax.random.uniform(k_lat, (), minval=lo_s, maxval=hi_s)
+            latency_steps = jnp.round(latency / self.sys.opt.timestep).astype(jnp.int32)
+        else:
+            latency_steps = jnp.zeros((), jnp.int32)
+        push_timer = jax.random.uniform(
+            k_push, (), minval=cfg.push.interval_s[0], maxval=cfg.push.interval_s[1]
+        )
+        return {
+            "command": command,
+            "latency_steps": latency_steps,
+            "push_timer": push_timer,
+            "rng": k_noise,
+        }
+
+    def reset(self, rng) -> State:
+        k_info, k_yaw = jax.random.split(rng)
+        qpos = self._home_qpos
+        data = mjx.make_data(self.sys)
+        data = data.replace(qpos=qpos, qvel=jnp.zeros(self.sys.nv), ctrl=self._home_ctrl)
+        data = mjx.forward(self.sys, data)
+        info = {
+            **self.episode_info(k_info),
+            "gait_progress": jnp.zeros(()),
+            "last_action": jnp.zeros(self.action_size),
+            "last_ctrl": self._home_ctrl,
+            "foot_targets": self._home_feet,  # (4, 3) last foot targets, shoulder frames [m]
+        }
+        metrics = {f"reward/{k}": jnp.zeros(()) for k in self._config.reward.weights}
+        metrics.update(
+            ik_invalid_legs=jnp.zeros(()),
+            nan_reset=jnp.zeros(()),
+            forward_speed=jnp.zeros(()),
+            abs_roll=jnp.zeros(()),
+            abs_pitch=jnp.zeros(()),
+        )
+        obs = self._get_obs(data, info)
+        return State(data, obs, jnp.zeros(()), jnp.zeros(()), metrics, info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        cfg = self._config
+        info = dict(state.info)
+        action = jnp.clip(action, -1.0, 1.0)
+        ctrl, ik_invalid, cycle_s, targets = self._motor_targets(info, action)
+
+        def substep(data, i):
+            c = jnp.where(i < info["latency_steps"], info["last_ctrl"], ctrl)
+            return mjx.step(self.sys, data.replace(ctrl=c)), None
+
+        data = state.pipeline_state
+        if cfg.pushes:
+            data, info = self._maybe_push(data, info)
+        data, _ = jax.lax.scan(substep, data, jnp.arange(self._n_substeps))
+
+        info["gait_progress"] = jnp.mod(info["gait_progress"] + self._ctrl_dt / cycle_s, 1.0)
+        finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+        sane = finite & (jnp.max(jnp.abs(data.qvel[:6])) < EXPLODED_SPEED)
+
+        rpy, lin_vel, ang_vel = self._base_state(data)
+        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel)
+        weights = cfg.reward.weights
+        reward = sum(weights[k] * v for k, v in terms.items())
+        fallen = (
+            (jnp.abs(rpy[0]) > cfg.termination.max_tilt_rad)
+            | (jnp.abs(rpy[1]) > cfg.termination.max_tilt_rad)
+            | (data.qpos[2] < cfg.termination.min_height_m)
+        )
+        done = fallen | ~sane
+        info["last_action"] = action
+        info["last_ctrl"] = ctrl
+        info["foot_targets"] = targets
+        obs = self._get_obs(data, info)
+        obs = jnp.where(sane, obs, 0.0)
+        reward = jnp.where(sane, reward, 0.0)
+
+        metrics = {f"reward/{k}": jnp.where(sane, weights[k] * v, 0.0) for k, v in terms.items()}
+        metrics.update(
+            ik_invalid_legs=ik_invalid.astype(jnp.float32),
+            nan_reset=(~sane).astype(jnp.float32),
+            forward_speed=jnp.where(sane, lin_vel[0], 0.0),
+            abs_roll=jnp.where(sane, jnp.abs(rpy[0]), 0.0),
+            abs_pitch=jnp.where(sane, jnp.abs(rpy[1]), 0.0),
+        )
+        return state.replace(
+            pipeline_state=data,
+            obs=obs,
+            reward=reward,
+            done=done.astype(jnp.float32),
+            metrics=metrics,
+            info=info,
+        )
+
+    # --- pieces of step ---------------------------------------------------------------------------
+    def gait_targets(self, info):
+        """The gait's own foot targets for the coming control step, before any action: (4, 3)
+        shoulder frames [m]. For controllers that act on the gait (e.g. the PID stabilizer)."""
+        params = self._gait
+        return gait.foot_targets(info["gait_progress"] * params.cycle_s, info["command"], params)
+
+    def _motor_targets(self, info, action):
+        """Gait + offsets -> (ctrl (nu,), number of legs whose target was clamped, cycle time [s])."""
+        cfg = self._config
+        params = self._gait
+        if cfg.gait_action:
+            r = cfg.gait_action_range
+            length_scale = 1.0 + r * action[12]
+            freq_scale = 1.0 + r * action[13]
+            params = params._replace(
+                step_length_m=params.step_length_m * length_scale, cycle_s=params.cycle_s / freq_scale
+            )
+            command = info["command"] * length_scale * freq_scale
+        else:
+            command = info["command"]
+        t = info["gait_progress"] * params.cycle_s
+        targets = gait.foot_targets(t, command, params)  # (4, 3) shoulder frames
+        targets = targets + cfg.action_scale_m * action[:12].reshape(4, 3)
+        angles, valid = gait.motor_targets(targets)  # (4, 3), (4,)
+        ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles.reshape(12))
+        return ctrl, jnp.sum(~valid), params.cycle_s, targets
+
+    def _maybe_push(self, data, info):
+        cfg = self._config
+        info["push_timer"] = info["push_timer"] - self._ctrl_dt
+        rng, k_dir, k_speed, k_next = jax.random.split(info["rng"], 4)
+        push_now = info["push_timer"] <= 0.0
+        angle = jax.random.uniform(k_dir, (), maxval=2 * jnp.pi)
+        speed = jax.random.uniform(k_speed, (), minval=cfg.push.speed_mps[0], maxval=cfg.push.speed_mps[1])
+        kick = jnp.where(push_now, speed, 0.0) * jnp.array([jnp.cos(angle), jnp.sin(angle)])
+        data = data.replace(qvel=data.qvel.at[:2].add(kick))
+        next_timer = jax.random.uniform(
+            k_next, (), minval=cfg.push.interval_s[0], maxval=cfg.push.interval_s[1]
+        )
+        info["push_timer"] = jnp.where(push_now, next_timer, info["push_timer"])
+        info["rng"] = rng
+        return data, info
+
+    def _base_state(self, data):
+        """-> rpy (3,) [rad], body-frame linear velocity (3,) [m/s], body-frame angular velocity (3,)."""
+        quat = data.qpos[3:7]
+        rpy = quat_to_rpy(quat)
+        lin_vel = quat_rotate_inverse(quat, data.qvel[0:3])  # free joint: world-frame linear velocity
+        ang_vel = data.qvel[3:6]  # free joint: angular velocity already in the body frame
+        return rpy, lin_vel, ang_vel
+
+    def _get_obs(self, data, info):
+        """29 values (seed 000): rpy, body linear and angular velocity, 12 motor positions, sin/cos of
+        each leg's phase in radians (the robot's code forgot the 2 pi); + command when tracking."""
+        cfg = self._config
+        rpy, lin_vel, ang_vel = self._base_state(data)
+        motor_pos = data.qpos[self._motor_qpos]
+        if cfg.randomize:
+            k = jax.random.split(jax.random.fold_in(info["rng"], 1), 4)
+            n = cfg.noise
+            rpy = rpy + n.rpy * jax.random.normal(k[0], (3,))
+            lin_vel = lin_vel + n.lin_vel * jax.random.normal(k[1], (3,))
+            ang_vel = ang_vel + n.ang_vel * jax.random.normal(k[2], (3,))
+            motor_pos = motor_pos + n.motor_pos * jax.random.normal(k[3], (12,))
+        phase = 2 * jnp.pi * gait.leg_phases(info["gait_progress"] * self._gait.cycle_s, self._gait)
+        parts = [rpy, lin_vel, ang_vel, motor_pos, jnp.sin(phase), jnp.cos(phase)]
+        if cfg.command_tracking:
+            parts.append(info["command"])
+        return jnp.concatenate(parts)
+
+    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel) -> dict:
+        r = self._config.reward
+        return {
+            "forward_velocity_exp": rewards.forward_velocity_exp(lin_vel, r.forward_target, r.forward_sigma),
+            "lateral_l2": rewards.lateral_l2(lin_vel, ang_vel),
+            "vertical_l2": rewards.vertical_l2(lin_vel, ang_vel),
+            "orientation_l2": rewards.orientation_l2(rpy, r.orientation_coeffs),
+            "height_l2": rewards.height_l2(data.qpos[2], r.height_target),
+            "action_rate_l2": rewards.action_rate_l2(action, info["last_action"]),
+            "torque_l2": rewards.torque_l2(data.actuator_force),
+            "lin_vel_tracking_exp": rewards.lin_vel_tracking_exp(lin_vel, info["command"], r.tracking_sigma),
+            "ang_vel_tracking_exp": rewards.ang_vel_tracking_exp(ang_vel, info["command"], r.tracking_sigma),
+        }

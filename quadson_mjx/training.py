@@ -1,0 +1,387 @@
+"""Brax PPO training of foot-offset policies: configs, checkpoints, MCAP metrics, resume.
+
+`train(env_cfg, ppo_cfg, run_dir)` calls `brax.training.agents.ppo.train` (not a fork of it) and
+writes one run directory:
+
+    run_dir/config.json              resolved env + ppo configs, versions
+    run_dir/train.mcap               every evaluation's metrics (/train/metrics), events (/train/log),
+                                     configs and versions as metadata, the MJCF as an attachment
+    run_dir/checkpoints/step_*.msgpack  (normaliser, policy, value) params at every evaluation
+    run_dir/checkpoints/latest       name of the newest checkpoint
+
+Checkpoints are written atomically (temp file + rename), so a killed run never leaves a half file
+behind as its newest. `--resume RUN_DIR` restores the newest checkpoint's parameters and
+normaliser, trains the remaining steps and keeps appending to the same train.mcap (messages of a
+killed run's file are recovered first). The optimiser's moments are not in brax's restorable state
+and restart from zero.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import ml_collections
+import numpy as np
+
+from quadson_mjx.config import from_json, to_json
+
+CHECKPOINT_DIR = "checkpoints"
+
+
+def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
+    """PPO hyperparameters. Presets: "gpu" (the real job on one GPU), "cpu" (a small run that
+    finishes in minutes on a CPU and still learns), "test" (a few iterations, for tests)."""
+    base = {
+        "num_timesteps": 100_000_000,
+        "num_evals": 11,
+        "num_envs": 8192,
+        "num_eval_envs": 128,
+        "episode_length": 0,  # 0: the env config's episode length (18.75 s)
+        "unroll_length": 20,
+        "batch_size": 256,
+        "num_minibatches": 32,
+        "num_updates_per_batch": 4,
+        "learning_rate": 3e-4,
+        "entropy_cost": 1e-2,
+        "discounting": 0.97,
+        "gae_lambda": 0.95,
+        "clipping_epsilon": 0.2,
+        "max_grad_norm": 1.0,
+        "reward_scaling": 1.0,
+        "normalize_observations": True,
+        "policy_hidden": (128, 128, 128, 128),
+        "value_hidden": (256, 256, 256, 256, 256),
+        "seed": 0,
+    }
+    presets = {
+        "gpu": {},
+        "cpu": {
+            "num_timesteps": 600_000,
+            "num_evals": 6,
+            "num_envs": 128,
+            "num_eval_envs": 32,
+            "episode_length": 250,
+            "batch_size": 128,
+            "num_minibatches": 8,
+            "policy_hidden": (64, 64),
+            "value_hidden": (128, 128),
+        },
+        "test": {
+            "num_timesteps": 2 * 4 * 8 * 2,
+            "num_evals": 2,
+            "num_envs": 4,
+            "num_eval_envs": 2,
+            "episode_length": 10,
+            "unroll_length": 8,
+            "batch_size": 4,
+            "num_minibatches": 2,
+            "num_updates_per_batch": 1,
+            "policy_hidden": (8,),
+            "value_hidden": (8,),
+        },
+    }
+    if preset not in presets:
+        raise ValueError(f"unknown ppo preset {preset!r}; choose from {sorted(presets)}")
+    cfg = ml_collections.ConfigDict({**base, **presets[preset], "preset": preset})
+    cfg.lock()
+    return cfg
+
+
+# --- networks and checkpoints -----------------------------------------------------------------------
+
+
+def make_networks(obs_size: int, action_size: int, ppo_cfg):
+    from brax.training.acme import running_statistics
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    normalize = running_statistics.normalize if ppo_cfg.normalize_observations else (lambda x, y: x)
+    return ppo_networks.make_ppo_networks(
+        obs_size,
+        action_size,
+        preprocess_observations_fn=normalize,
+        policy_hidden_layer_sizes=tuple(ppo_cfg.policy_hidden),
+        value_hidden_layer_sizes=tuple(ppo_cfg.value_hidden),
+    )
+
+
+def params_template(obs_size: int, action_size: int, ppo_cfg):
+    """Freshly initialised (normaliser, policy, value) params: the structure a checkpoint restores into."""
+    from brax.training.acme import running_statistics, specs
+
+    nets = make_networks(obs_size, action_size, ppo_cfg)
+    key_p, key_v = jax.random.split(jax.random.PRNGKey(0))
+    normalizer = running_statistics.init_state(specs.Array((obs_size,), np.dtype("float32")))
+    return (normalizer, nets.policy_network.init(key_p), nets.value_network.init(key_v))
+
+
+def save_checkpoint(run_dir: Path, step: int, params) -> Path:
+    import flax.serialization
+
+    ckpt_dir = Path(run_dir) / CHECKPOINT_DIR
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    name = f"step_{step:012d}.msgpack"
+    data = flax.serialization.to_bytes(jax.device_get(params))
+    tmp = ckpt_dir / (name + ".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, ckpt_dir / name)
+    latest_tmp = ckpt_dir / "latest.tmp"
+    latest_tmp.write_text(name)
+    os.replace(latest_tmp, ckpt_dir / "latest")
+    return ckpt_dir / name
+
+
+def latest_checkpoint(run_dir: Path) -> tuple[Path, int]:
+    """-> (path, env step) of the newest checkpoint; raises FileNotFoundError naming what is missing."""
+    ckpt_dir = Path(run_dir) / CHECKPOINT_DIR
+    pointer = ckpt_dir / "latest"
+    if not pointer.exists():
+        raise FileNotFoundError(f"no checkpoint in {run_dir}: {pointer} does not exist")
+    path = ckpt_dir / pointer.read_text().strip()
+    if not path.exists():
+        raise FileNotFoundError(f"{pointer} names {path.name}, which does not exist")
+    return path, int(path.stem.split("_")[1])
+
+
+def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collections.ConfigDict]:
+    path = Path(run_dir) / "config.json"
+    if not path.exists():
+        raise FileNotFoundError(f"{run_dir} is not a run directory: {path} does not exist")
+    data = json.loads(path.read_text())
+    return from_json(json.dumps(data["env"])), from_json(json.dumps(data["ppo"]))
+
+
+def load_checkpoint(path: Path, obs_size: int, action_size: int, ppo_cfg):
+    """Restores (normaliser, policy, value) params; raises ValueError on a corrupt or mismatched file."""
+    import flax.serialization
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    template = params_template(obs_size, action_size, ppo_cfg)
+    try:
+        return flax.serialization.from_bytes(template, path.read_bytes())
+    except Exception as e:  # msgpack and flax raise several types for a damaged file
+        raise ValueError(f"checkpoint {path} is corrupt or does not match the run's networks: {e}") from e
+
+
+def load_policy(run_dir: Path, checkpoint: Path | None = None, deterministic: bool = True):
+    """-> (policy(obs, key) -> (action, extras), env_cfg, ppo_cfg, params) from a run directory."""
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    from quadson_mjx.env import QuadsonEnv
+
+    env_cfg, ppo_cfg = load_run_config(run_dir)
+    env = QuadsonEnv(env_cfg)
+    path = checkpoint or latest_checkpoint(run_dir)[0]
+    params = load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
+    nets = make_networks(env.observation_size, env.action_size, ppo_cfg)
+    policy = ppo_networks.make_inference_fn(nets)(params, deterministic=deterministic)
+    return policy, env_cfg, ppo_cfg, params
+
+
+# --- run bookkeeping --------------------------------------------------------------------------------
+
+
+def versions() -> dict[str, str]:
+    import brax
+    import mujoco
+
+    out = {"python": platform.python_version(), "jax": jax.__version__, "brax": brax.__version__}
+    out["mujoco"] = mujoco.__version__
+    out["numpy"] = np.__version__
+    out["devices"] = ", ".join(d.device_kind for d in jax.devices())
+    try:
+        rev = subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent, timeout=5
+        )
+        out["git_revision"] = rev.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        out["git_revision"] = "unknown"
+    return out
+
+
+@dataclasses.dataclass
+class Progress:
+    """Terminal progress: one line per evaluation with steps, steps/s, ETA and the latest reward."""
+
+    total_steps: int
+    start_step: int = 0
+    stream: object = sys.stdout
+    t0: float = dataclasses.field(default_factory=time.monotonic)
+    last: tuple[float, int] | None = None
+
+    def update(self, step: int, reward: float | None) -> dict[str, float]:
+        now = time.monotonic()
+        done = step - self.start_step
+        if self.last is not None and step > self.last[1]:
+            sps = (step - self.last[1]) / max(now - self.last[0], 1e-9)
+        else:
+            sps = float("nan")
+        remaining = max(self.total_steps - step, 0)
+        eta = remaining / sps if sps == sps and sps > 0 else float("nan")
+        self.last = (now, step)
+        width = 30
+        filled = int(width * min(step / max(self.total_steps, 1), 1.0))
+        bar = "#" * filled + "-" * (width - filled)
+        eta_txt = f"{int(eta // 60)}m{int(eta % 60):02d}s" if eta == eta else "--"
+        sps_txt = f"{sps:,.0f}" if sps == sps else "--"
+        rew_txt = f"{reward:.3f}" if reward is not None else "--"
+        print(
+            f"[{bar}] {step:,}/{self.total_steps:,} steps | {sps_txt} steps/s | ETA {eta_txt} | "
+            f"eval reward {rew_txt} | {now - self.t0:.0f}s",
+            file=self.stream,
+            flush=True,
+        )
+        return {"env_steps_per_s": sps, "steps_this_session": float(done)}
+
+
+def train(
+    env_cfg,
+    ppo_cfg,
+    run_dir: str | Path,
+    resume: bool = False,
+    progress_stream=sys.stdout,
+    on_eval: Callable[[int, dict], None] | None = None,
+):
+    """Trains with brax PPO and writes the run directory. Returns (make_policy, params, metrics).
+
+    resume=True continues the run in `run_dir` from its newest checkpoint (configs come from it).
+    A KeyboardInterrupt closes the MCAP log cleanly (summary written) and is re-raised.
+    """
+    from brax.training.agents.ppo import train as ppo
+
+    from quadson_mjx import compat
+    from quadson_mjx.env import QuadsonEnv
+    from quadson_mjx.mcap_check import recover_messages
+    from quadson_mjx.mcap_log import McapLog
+    from quadson_mjx.randomize import randomization_fn
+    from quadson_mjx.wrappers import wrap_for_training
+
+    compat.patch_brax()
+    run_dir = Path(run_dir)
+    start_step = 0
+    restore = None
+    if resume:
+        env_cfg, ppo_cfg = load_run_config(run_dir)
+        ckpt, start_step = latest_checkpoint(run_dir)
+    else:
+        if run_dir.exists() and any(run_dir.iterdir()):
+            raise FileExistsError(f"run directory {run_dir} is not empty; use --resume to continue it")
+        run_dir.mkdir(parents=True, exist_ok=True)
+
+    env = QuadsonEnv(env_cfg)
+    eval_env = QuadsonEnv(env_cfg)
+    if resume:
+        restore = load_checkpoint(ckpt, env.observation_size, env.action_size, ppo_cfg)
+    remaining = ppo_cfg.num_timesteps - start_step
+    if remaining <= 0:
+        raise ValueError(f"run {run_dir} already trained {start_step} of {ppo_cfg.num_timesteps} steps")
+    vers = versions()
+    (run_dir / "config.json").write_text(
+        json.dumps(
+            {"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": vers},
+            indent=2,
+        )
+    )
+
+    log_path = run_dir / "train.mcap"
+    old = []
+    if resume and log_path.exists():
+        old = recover_messages(log_path)
+        log_path.rename(run_dir / "train.mcap.before_resume")
+    log = McapLog(log_path, profile="quadson_mjx.train")
+    for topic, log_time, message in old:
+        log.log(topic, message, log_time)
+    log.metadata("env_config", {"json": to_json(env_cfg)})
+    log.metadata("ppo_config", {"json": to_json(ppo_cfg)})
+    log.metadata("versions", vers)
+    log.attachment("quadson.xml", _model_xml(env_cfg.terrain).encode(), "application/xml")
+    if old:
+        (run_dir / "train.mcap.before_resume").unlink()
+    log.log("/train/log", {"event": "resume" if resume else "start", "step": start_step}, time.time_ns())
+
+    progress = Progress(total_steps=ppo_cfg.num_timesteps, start_step=start_step, stream=progress_stream)
+    last_metrics: dict = {}
+
+    def progress_fn(step, metrics):
+        step = int(step) + start_step
+        reward = metrics.get("eval/episode_reward")
+        extra = progress.update(step, None if reward is None else float(reward))
+        record = {
+            **{k: float(v) for k, v in metrics.items()},
+            **{f"progress/{k}": v for k, v in extra.items()},
+        }
+        record["progress/step"] = step
+        log.log("/train/metrics", _nest(record), time.time_ns())
+        last_metrics.clear()
+        last_metrics.update(record)
+        if on_eval is not None:
+            on_eval(step, record)
+
+    def policy_params_fn(step, make_policy, params):
+        save_checkpoint(run_dir, int(step) + start_step, params)
+
+    episode_length = ppo_cfg.episode_length or env.episode_length
+    randomize = randomization_fn(env_cfg.randomization) if env_cfg.randomize else None
+    try:
+        make_policy, params, _ = ppo.train(
+            environment=env,
+            eval_env=eval_env,
+            wrap_env_fn=wrap_for_training,
+            randomization_fn=randomize,
+            num_timesteps=remaining,
+            num_evals=ppo_cfg.num_evals,
+            num_envs=ppo_cfg.num_envs,
+            num_eval_envs=ppo_cfg.num_eval_envs,
+            episode_length=episode_length,
+            unroll_length=ppo_cfg.unroll_length,
+            batch_size=ppo_cfg.batch_size,
+            num_minibatches=ppo_cfg.num_minibatches,
+            num_updates_per_batch=ppo_cfg.num_updates_per_batch,
+            learning_rate=ppo_cfg.learning_rate,
+            entropy_cost=ppo_cfg.entropy_cost,
+            discounting=ppo_cfg.discounting,
+            gae_lambda=ppo_cfg.gae_lambda,
+            clipping_epsilon=ppo_cfg.clipping_epsilon,
+            max_grad_norm=ppo_cfg.max_grad_norm,
+            reward_scaling=ppo_cfg.reward_scaling,
+            normalize_observations=ppo_cfg.normalize_observations,
+            network_factory=lambda obs, act, preprocess_observations_fn: make_networks(obs, act, ppo_cfg),
+            seed=ppo_cfg.seed + start_step,
+            progress_fn=progress_fn,
+            policy_params_fn=policy_params_fn,
+            restore_params=restore,
+        )
+    except KeyboardInterrupt:
+        log.log(
+            "/train/log",
+            {"event": "interrupted", "step": progress.last[1] if progress.last else start_step},
+            time.time_ns(),
+        )
+        log.close()
+        raise
+    save_checkpoint(run_dir, ppo_cfg.num_timesteps, params)
+    log.log("/train/log", {"event": "finished", "step": ppo_cfg.num_timesteps}, time.time_ns())
+    log.close()
+    return make_policy, params, last_metrics
+
+
+def _nest(record: dict) -> dict:
+    from quadson_mjx.mcap_log import nest_metrics
+
+    return nest_metrics(record)
+
+
+def _model_xml(terrain: str) -> str:
+    from quadson_mjx import model as qmodel
+
+    return qmodel.model_xml_text(terrain)

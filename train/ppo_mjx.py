@@ -1,0 +1,102 @@
+"""Train a Quadson foot-offset policy with brax PPO on MJX.
+
+    python train/ppo_mjx.py                                   # the real job (small preset on a CPU)
+    python train/ppo_mjx.py --ppo.num_timesteps=50000000 --env.reward.forward_target=0.4
+    python train/ppo_mjx.py --preset test --run-dir runs/smoke
+    python train/ppo_mjx.py --resume runs/20261121-101500
+
+Env options: --env-preset seed|command|robust (seed 000's formulation; + velocity commands;
++ commands, domain randomization, pushes). Any config key can be overridden with --env.KEY=VALUE or
+--ppo.KEY=VALUE; an unknown key is an error naming it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from quadson_mjx import training  # noqa: E402
+from quadson_mjx.config import apply_overrides  # noqa: E402
+from quadson_mjx.env_config import env_config  # noqa: E402
+
+ENV_PRESETS = {
+    "seed": {},
+    "command": {"command_tracking": True},
+    "robust": {"command_tracking": True, "randomize": True, "pushes": True},
+}
+
+
+def parse(argv):
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V --ppo.KEY=V"
+    )
+    p.add_argument(
+        "--preset", default=None, help="ppo preset: gpu, cpu or test (default: gpu if a GPU is present)"
+    )
+    p.add_argument("--env-preset", default="seed", choices=sorted(ENV_PRESETS))
+    p.add_argument(
+        "--gait-action", action="store_true", help="let the policy also scale step length and cycle time"
+    )
+    p.add_argument("--terrain", default="flat", choices=["flat", "rough"])
+    p.add_argument("--run-dir", default=None, help="default: runs/<date-time>")
+    p.add_argument(
+        "--resume", metavar="RUN_DIR", default=None, help="continue a run from its newest checkpoint"
+    )
+    args, rest = p.parse_known_args(argv)
+    bad = [r for r in rest if not (r.startswith("--env.") or r.startswith("--ppo."))]
+    if bad:
+        p.error(f"unrecognised arguments: {' '.join(bad)}")
+    return args, rest
+
+
+def main(argv=None) -> int:
+    args, overrides = parse(sys.argv[1:] if argv is None else argv)
+    if args.resume:
+        if overrides:
+            print("--resume takes the run's saved configs; overrides are not allowed", file=sys.stderr)
+            return 2
+        run_dir = Path(args.resume)
+        env_cfg = ppo_cfg = None
+    else:
+        on_gpu = jax.default_backend() == "gpu"
+        preset = args.preset or ("gpu" if on_gpu else "cpu")
+        if not on_gpu and args.preset is None:
+            print("No GPU found: running the small 'cpu' preset (minutes). Use a GPU for the real job.")
+        env_cfg = env_config(terrain=args.terrain, **ENV_PRESETS[args.env_preset])
+        env_cfg.gait_action = args.gait_action
+        env_cfg = apply_overrides(env_cfg, [o[len("--env.") :] for o in overrides if o.startswith("--env.")])
+        ppo_cfg = apply_overrides(
+            training.ppo_config(preset), [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
+        )
+        run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
+    print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
+    t0 = time.monotonic()
+    try:
+        _, _, metrics = training.train(env_cfg, ppo_cfg, run_dir, resume=bool(args.resume))
+    except KeyboardInterrupt:
+        print(
+            f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable; the newest checkpoint is"
+        )
+        print(
+            f"in {run_dir / training.CHECKPOINT_DIR}. Continue with: python train/ppo_mjx.py --resume {run_dir}"
+        )
+        return 130
+    print(f"\ndone in {time.monotonic() - t0:.0f} s")
+    for key in ("eval/episode_reward", "eval/episode_forward_speed", "eval/avg_episode_length"):
+        if key in metrics:
+            print(f"  {key}: {metrics[key]:.3f}")
+    print(
+        f"  metrics log: {run_dir / 'train.mcap'}  (open in Foxglove; check: python -m quadson_mjx.mcap_check)"
+    )
+    print(f"  checkpoints: {run_dir / training.CHECKPOINT_DIR}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
