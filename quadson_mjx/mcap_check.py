@@ -1,12 +1,13 @@
 """Validate an MCAP file, or recover the readable part of a truncated one.
 
-    python -m quadson_mjx.mcap_check FILE [--expect-topic /tf ...] [--recover OUT]
+    python -m quadson_mjx.mcap_check FILE [--expect-topic /tf ...] [--rollout] [--recover OUT]
 
 A complete file is read through its summary (the seeking reader) and its chunk CRCs are checked; a
 file whose writer was killed has no summary, so it is read front to back with the non-seeking reader,
 which yields every message of every complete chunk and stops at the first damaged record. The
 report names the topics, schemas, message counts and time range; `--recover OUT` writes the readable
-messages into a new, complete file. Exit status: 0 valid, 1 readable only in part (truncated),
+messages into a new, complete file; `--rollout` expects every topic of a rollout file
+(quadson_mjx.foxglove_mcap). `decode` turns a message (JSON or Foxglove protobuf) into a dict. Exit status: 0 valid, 1 readable only in part (truncated),
 2 unreadable or missing an expected topic.
 """
 
@@ -23,6 +24,53 @@ from pathlib import Path
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import Writer
+
+ROLLOUT_TOPICS = ("/tf", "/scene", "/joint_states", "/odom", "/imu", "/rollout/step", "/log")
+
+
+def decode(schema, channel, message) -> dict:
+    """A JSON or protobuf (Foxglove schema) message -> dict; protobuf needs the `protobuf` package.
+    Protobuf fields keep their proto names (`child_frame_id`) and follow protobuf's JSON mapping
+    (google.protobuf.Timestamp as RFC 3339 text, 64-bit integers as strings)."""
+    if channel.message_encoding == "json":
+        return json.loads(message.data)
+    if channel.message_encoding != "protobuf":
+        raise ValueError(f"cannot decode {channel.message_encoding!r} messages of {channel.topic}")
+    return _to_dict(_protobuf_class(schema.name, schema.data).FromString(message.data))
+
+
+_PROTO_CLASSES: dict = {}
+
+
+def _protobuf_class(name: str, fds_bytes: bytes):
+    key = (name, fds_bytes)
+    if key not in _PROTO_CLASSES:
+        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+        fds = descriptor_pb2.FileDescriptorSet.FromString(fds_bytes)
+        pool = descriptor_pool.DescriptorPool()
+        for fd in fds.file:
+            pool.Add(fd)
+        _PROTO_CLASSES[key] = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+    return _PROTO_CLASSES[key]
+
+
+def _to_dict(msg) -> dict:
+    from google.protobuf.json_format import MessageToDict
+
+    return MessageToDict(msg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
+
+
+def read_messages(path: str | Path, topics=None) -> list[tuple[str, int, dict]]:
+    """(topic, log_time_ns, decoded message) of every readable message of `path` (of `topics`)."""
+    out = []
+
+    def sink(schema, channel, message):
+        if topics is None or channel.topic in topics:
+            out.append((channel.topic, message.log_time, decode(schema, channel, message)))
+
+    check(path, sink)
+    return out
 
 
 @dataclass
@@ -148,8 +196,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("file")
     p.add_argument("--expect-topic", action="append", default=[], help="fail unless this topic has messages")
+    p.add_argument("--rollout", action="store_true", help="expect every topic of a rollout file")
     p.add_argument("--recover", metavar="OUT", help="write the readable messages to a new complete file")
     args = p.parse_args(argv)
+    if args.rollout:
+        args.expect_topic += [t for t in ROLLOUT_TOPICS if t not in args.expect_topic]
     report = recover(args.file, args.recover) if args.recover else check(args.file)
     print("\n".join(report.lines()))
     missing = [t for t in args.expect_topic if report.counts.get(t, 0) == 0]

@@ -1,0 +1,134 @@
+"""Headless rollouts of a controller to MCAP files that open in Foxglove.
+
+    python eval/rollout.py --controller gait --seconds 3                    # gait alone, flat ground
+    python eval/rollout.py --controller pid --terrain rough --envs 10 --out runs/pid_rough.mcap
+    python eval/rollout.py --run runs/20261121-101500 --vx 0.2 --yaw-rate 0.25
+    python eval/rollout.py --suite --out-dir runs/compare [--run RUN_DIR]   # the comparison set
+
+Controllers: `gait` (zero action), `pid` (gait + seed 003's roll/pitch stabilizer), or a trained
+policy from a run directory (`--run`, newest checkpoint unless `--checkpoint`). All environments
+step together on the accelerator (vmap of env.step under lax.scan); the host writes the MCAP file
+(topics: quadson_mjx.foxglove_mcap). Without --vx/--vy/--yaw-rate the gait's seed-speed forward walk
+is commanded. An episode that ends (fall) restarts from the first state; every env is one episode
+of the trial otherwise. `--suite` writes one file per controller x terrain (flat, rough) x command
+(forward at the gait's seed speed; turning in place at 0.25 rad/s), for eval/report.py.
+Env config keys can be overridden with --env.KEY=VALUE (named controllers only).
+Check a file: python -m quadson_mjx.mcap_check FILE --rollout
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from quadson_mjx import foxglove_mcap, gait  # noqa: E402
+from quadson_mjx import rollout as R  # noqa: E402
+from quadson_mjx.config import apply_overrides  # noqa: E402
+from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env_config import env_config  # noqa: E402
+
+SUITE_YAW_RATE = 0.25  # rad/s, seed 003's turning test
+
+
+def parse(argv):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V")
+    p.add_argument("--controller", default="gait", choices=R.CONTROLLERS)
+    p.add_argument("--run", default=None, help="run directory of a trained policy (overrides --controller)")
+    p.add_argument("--checkpoint", default=None, help="checkpoint file of --run (default: newest)")
+    p.add_argument("--terrain", default=None, choices=["flat", "rough"], help="default: flat, or the run's")
+    p.add_argument("--gait", default="trot")
+    p.add_argument("--vx", type=float, default=None, help="m/s")
+    p.add_argument("--vy", type=float, default=0.0, help="m/s")
+    p.add_argument("--yaw-rate", type=float, default=0.0, help="rad/s")
+    p.add_argument("--envs", type=int, default=1, help="environments (episodes) in parallel")
+    p.add_argument("--seconds", type=float, default=10.0, help="trial length [s]")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--segment-steps", type=int, default=250, help="steps per compiled segment (flush)")
+    p.add_argument("--out", default=None, help="MCAP file (default: runs/rollout_<controller>_<time>.mcap)")
+    p.add_argument("--out-dir", default="runs/compare", help="directory of --suite files")
+    p.add_argument(
+        "--suite", action="store_true", help="controllers x terrains x commands for eval/report.py"
+    )
+    p.add_argument("--overwrite", action="store_true")
+    args, rest = p.parse_known_args(argv)
+    bad = [r for r in rest if not r.startswith("--env.")]
+    if bad:
+        p.error(f"unrecognised arguments: {' '.join(bad)}")
+    return args, [r[len("--env.") :] for r in rest]
+
+
+def build(args, overrides, controller_name: str, terrain: str | None):
+    """-> (env, controller, metadata) for a named controller or a run directory's policy."""
+    if controller_name == "policy":
+        from quadson_mjx import training
+
+        policy, env_cfg, _, _ = training.load_policy(Path(args.run), args.checkpoint)
+        if overrides:
+            raise SystemExit("--env overrides are not allowed with --run: the policy's env config is used")
+        if terrain and terrain != env_cfg.terrain:
+            env_cfg = apply_overrides(env_cfg, [f"terrain={terrain}"])
+        env = QuadsonEnv(env_cfg)
+        ckpt = args.checkpoint or str(training.latest_checkpoint(Path(args.run))[0])
+        return env, R.policy_controller(policy), {"run_dir": str(args.run), "checkpoint": ckpt}
+    env_cfg = apply_overrides(env_config(terrain=terrain or "flat", gait=args.gait), overrides)
+    env = QuadsonEnv(env_cfg)
+    return env, R.named_controller(env, controller_name), {"run_dir": "", "checkpoint": ""}
+
+
+def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
+    env, controller, meta = build(args, overrides, controller_name, terrain)
+    if command is None:
+        seed_speed = float(gait.seed_speed(gait.gait_params(env.config.gait, swing=env.config.swing)))
+        vx = seed_speed if args.vx is None else args.vx
+        command = (vx, args.vy, args.yaw_rate)
+    n_steps = max(1, round(args.seconds / env.ctrl_dt))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    summary = foxglove_mcap.record(
+        out,
+        env,
+        controller,
+        jax.random.PRNGKey(args.seed),
+        args.envs,
+        n_steps,
+        command=command,
+        segment_steps=args.segment_steps,
+        metadata={**meta, "seed": args.seed, "trial_s": n_steps * env.ctrl_dt},
+        overwrite=args.overwrite,
+    )
+    print(
+        f"{out}: {controller.name}, {env.config.terrain}, command {tuple(round(c, 3) for c in command)}, "
+        f"{args.envs} env(s) x {n_steps} steps, {summary['falls']} fall(s), "
+        f"{summary['nan_resets']} non-finite reset(s), {time.monotonic() - t0:.0f} s"
+    )
+
+
+def main(argv=None) -> int:
+    args, overrides = parse(sys.argv[1:] if argv is None else argv)
+    default_name = "policy" if args.run else args.controller
+    if not args.suite:
+        command = None if args.vx is None else (args.vx, args.vy, args.yaw_rate)
+        if command is None and (args.vy or args.yaw_rate):
+            command = (0.0, args.vy, args.yaw_rate)
+        out = Path(args.out or f"runs/rollout_{default_name}_{time.strftime('%Y%m%d-%H%M%S')}.mcap")
+        one(args, overrides, default_name, args.terrain, command, out)
+        return 0
+    names = [*R.CONTROLLERS, *(["policy"] if args.run else [])]
+    out_dir = Path(args.out_dir)
+    for name in names:
+        for terrain in ("flat", "rough"):
+            for task in ("forward", "turn"):
+                command = None if task == "forward" else (0.0, 0.0, SUITE_YAW_RATE)
+                one(args, overrides, name, terrain, command, out_dir / f"{name}_{terrain}_{task}.mcap")
+    print(f"compare: python eval/report.py {out_dir}/*.mcap --out-dir {out_dir}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

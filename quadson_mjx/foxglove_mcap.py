@@ -1,0 +1,530 @@
+"""Rollouts to MCAP files that open in Foxglove: typed Foxglove schemas where one exists, JSON elsewhere.
+
+Topics (t = simulation time of the step's end; the static scene at t = 0):
+
+    /tf              foxglove.FrameTransforms  one per step: every body of every env, parent = parent
+                                               body's frame or "world" (closed-chain links included)
+    /scene           foxglove.SceneUpdate      once: an entity per drawn geom (capsule = cylinder + 2
+                                               spheres, box = cube, sphere, plane = thin cube, height
+                                               field = triangle list), frame = the geom's body frame
+    /joint_states    foxglove.JointStates      one per step: every hinge of every env (effort = motor
+                                               torque [N m], absent for passive joints)
+    /odom            foxglove.Odometry         one per env per step: base pose in "world", velocities
+                                               in the base frame
+    /imu             JSON                      one per env per step: orientation (xyzw), angular
+                                               velocity [rad/s], linear acceleration [m/s^2]
+    /rollout/step    JSON                      one per env per step: observation, action, foot targets,
+                                               reward terms, contacts, closure residual, base state
+    /log             foxglove.Log              episode starts, falls, non-finite resets, the end
+
+Frames of environment i are prefixed `env{i}/` (`env0/base`, `env0/FL_link2`); the floor is drawn
+in "world". Per-env JSON and Odometry messages carry `env` (JSON) / `body_frame_id`, so a Foxglove
+message path such as `/rollout/step{env==0}.base.vx` picks one environment.
+
+Quaternions: MuJoCo writes wxyz, Foxglove reads xyzw; converted here. JSON cannot carry NaN: non-finite
+numbers become null. Every file gets its own `foxglove.Context` (channels never leak between files)
+and every message an explicit log_time. `flush()` ends the current chunk, so a killed writer leaves
+a file whose messages up to the last flush are readable (`python -m quadson_mjx.mcap_check`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import foxglove
+import mujoco
+import numpy as np
+from foxglove import channels as fch
+from foxglove import messages as fm
+from foxglove.mcap import MCAPWriteOptions
+
+from quadson_mjx import constants as C
+from quadson_mjx.mcap_check import ROLLOUT_TOPICS  # noqa: F401 (one list for the writer and the checker)
+
+PROFILE = "quadson_mjx.rollout"
+FLOOR_HALF_EXTENT_M = 10.0  # an infinite MuJoCo plane is drawn this large
+_FLOOR_COLOR = (0.25, 0.35, 0.45, 1.0)
+
+
+def _ts(t_ns: int) -> fm.Timestamp:
+    return fm.Timestamp(sec=int(t_ns // 1_000_000_000), nsec=int(t_ns % 1_000_000_000))
+
+
+def _quat_xyzw(q_wxyz) -> fm.Quaternion:
+    w, x, y, z = (float(v) for v in q_wxyz)
+    return fm.Quaternion(x=x, y=y, z=z, w=w)
+
+
+def _vec(v) -> fm.Vector3:
+    return fm.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def _pose(pos, quat_wxyz) -> fm.Pose:
+    return fm.Pose(position=_vec(pos), orientation=_quat_xyzw(quat_wxyz))
+
+
+def json_safe(x):
+    """Nested numbers/arrays -> JSON-ready lists with non-finite values as None."""
+    if isinstance(x, dict):
+        return {k: json_safe(v) for k, v in x.items()}
+    a = np.asarray(x)
+    if a.dtype == bool:
+        return a.tolist()
+    if a.dtype.kind in "iu":
+        return a.tolist()
+    a = a.astype(np.float64)
+    if np.all(np.isfinite(a)):
+        return a.tolist()
+    return np.where(np.isfinite(a), a, None).tolist() if a.ndim else None
+
+
+def quat_mul(a, b):
+    """Hamilton product of wxyz quaternions (..., 4)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_rotate(q, v):
+    """Rotates v (..., 3) by wxyz quaternion q (..., 4)."""
+    w, u = q[..., :1], q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def local_transforms(model: mujoco.MjModel, xpos, xquat):
+    """World body poses (..., nbody, 3), (..., nbody, 4 wxyz) -> each body's pose in its parent
+    body's frame (same shapes); the world body's entry is the identity."""
+    parent = model.body_parentid
+    conj = xquat[..., parent, :] * np.array([1.0, -1.0, -1.0, -1.0])
+    rel_pos = quat_rotate(conj, xpos - xpos[..., parent, :])
+    rel_quat = quat_mul(conj, xquat)
+    return rel_pos, rel_quat
+
+
+def body_frames(model: mujoco.MjModel, env: int) -> list[str]:
+    """Frame id of every body for environment `env` ("world" for the world body)."""
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}" for b in range(model.nbody)]
+    return ["world"] + [f"env{env}/{n}" for n in names[1:]]
+
+
+def _floor_color() -> fm.Color:
+    r, g, b, a = _FLOOR_COLOR
+    return fm.Color(r=r, g=g, b=b, a=a)
+
+
+def _color(model, g) -> fm.Color:
+    r, gr, b, a = (float(v) for v in model.geom_rgba[g])
+    return fm.Color(r=r, g=gr, b=b, a=a)
+
+
+def _drawn_geoms(model) -> list[int]:
+    """Geoms to draw: all but exact duplicates of another geom on the same body (a collision box
+    that coincides with its visual box would flicker)."""
+    seen, out = set(), []
+    for g in np.argsort(model.geom_group, kind="stable"):  # visual (group 2) before collision (3)
+        key = (
+            int(model.geom_bodyid[g]),
+            int(model.geom_type[g]),
+            tuple(np.round(model.geom_size[g], 9)),
+            tuple(np.round(model.geom_pos[g], 9)),
+            tuple(np.round(model.geom_quat[g], 9)),
+        )
+        if key not in seen:
+            seen.add(key)
+            out.append(int(g))
+    return sorted(out)
+
+
+def _hfield_triangles(model, g) -> fm.TriangleListPrimitive:
+    """The height field as a triangle list in the geom frame (MuJoCo's vertex layout)."""
+    h = int(model.geom_dataid[g])
+    nrow, ncol = int(model.hfield_nrow[h]), int(model.hfield_ncol[h])
+    rx, ry, top, _ = model.hfield_size[h]
+    adr = int(model.hfield_adr[h])
+    z = np.asarray(model.hfield_data[adr : adr + nrow * ncol]).reshape(nrow, ncol) * top
+    xs = np.linspace(-rx, rx, ncol)
+    ys = np.linspace(-ry, ry, nrow)
+    points = [
+        fm.Point3(x=float(xs[c]), y=float(ys[r]), z=float(z[r, c])) for r in range(nrow) for c in range(ncol)
+    ]
+    r, c = np.meshgrid(np.arange(nrow - 1), np.arange(ncol - 1), indexing="ij")
+    v00 = (r * ncol + c).ravel()
+    v01, v10, v11 = v00 + 1, v00 + ncol, v00 + ncol + 1
+    idx = np.stack([v00, v01, v11, v00, v11, v10], axis=-1).ravel().tolist()
+    return fm.TriangleListPrimitive(
+        pose=_pose(model.geom_pos[g], model.geom_quat[g]),
+        points=points,
+        color=_floor_color(),
+        indices=idx,
+    )
+
+
+def geom_entity(model, g: int, frame_id: str, entity_id: str) -> fm.SceneEntity | None:
+    """A SceneEntity drawing geom g in its body's frame (None for a type not drawn)."""
+    T = mujoco.mjtGeom
+    gtype, size = int(model.geom_type[g]), model.geom_size[g]
+    pos, quat = model.geom_pos[g], model.geom_quat[g]
+    kw: dict = {}
+    if gtype == T.mjGEOM_CAPSULE or gtype == T.mjGEOM_CYLINDER:
+        r, half = float(size[0]), float(size[1])
+        kw["cylinders"] = [
+            fm.CylinderPrimitive(
+                pose=_pose(pos, quat),
+                size=fm.Vector3(x=2 * r, y=2 * r, z=2 * half),
+                bottom_scale=1.0,
+                top_scale=1.0,
+                color=_color(model, g),
+            )
+        ]
+        if gtype == T.mjGEOM_CAPSULE:
+            axis = quat_rotate(np.asarray(quat, np.float64), np.array([0.0, 0.0, half]))
+            kw["spheres"] = [
+                fm.SpherePrimitive(
+                    pose=_pose(pos + s * axis, quat),
+                    size=fm.Vector3(x=2 * r, y=2 * r, z=2 * r),
+                    color=_color(model, g),
+                )
+                for s in (-1.0, 1.0)
+            ]
+    elif gtype == T.mjGEOM_BOX:
+        kw["cubes"] = [fm.CubePrimitive(pose=_pose(pos, quat), size=_vec(2 * size), color=_color(model, g))]
+    elif gtype == T.mjGEOM_SPHERE:
+        d = 2 * float(size[0])
+        kw["spheres"] = [
+            fm.SpherePrimitive(pose=_pose(pos, quat), size=fm.Vector3(x=d, y=d, z=d), color=_color(model, g))
+        ]
+    elif gtype == T.mjGEOM_PLANE:
+        hx = float(size[0]) or FLOOR_HALF_EXTENT_M
+        hy = float(size[1]) or FLOOR_HALF_EXTENT_M
+        thick = 0.002
+        top = np.asarray(pos, np.float64) - quat_rotate(
+            np.asarray(quat, np.float64), np.array([0, 0, thick / 2])
+        )
+        kw["cubes"] = [
+            fm.CubePrimitive(
+                pose=_pose(top, quat), size=fm.Vector3(x=2 * hx, y=2 * hy, z=thick), color=_floor_color()
+            )
+        ]
+    elif gtype == T.mjGEOM_HFIELD:
+        kw["triangles"] = [_hfield_triangles(model, g)]
+    else:  # ellipsoid, mesh, sdf: not in the Quadson model
+        return None
+    return fm.SceneEntity(timestamp=_ts(0), frame_id=frame_id, id=entity_id, frame_locked=True, **kw)
+
+
+class RolloutWriter:
+    """One rollout MCAP file. Use as a context manager or call close()."""
+
+    def __init__(
+        self, path: str | Path, model: mujoco.MjModel, n_envs: int, ctrl_dt: float, overwrite: bool = False
+    ):
+        self.path = Path(path)
+        self._ctrl_dt = float(ctrl_dt)
+        self.model = model
+        self.n_envs = n_envs
+        self._ctx = foxglove.Context()
+        opts = MCAPWriteOptions(profile=PROFILE)
+        self._writer = foxglove.open_mcap(
+            str(self.path), allow_overwrite=overwrite, context=self._ctx, writer_options=opts
+        )
+        ctx = self._ctx
+        self._tf = fch.FrameTransformsChannel("/tf", context=ctx)
+        self._scene = fch.SceneUpdateChannel("/scene", context=ctx)
+        self._joints = fch.JointStatesChannel("/joint_states", context=ctx)
+        self._odom = fch.OdometryChannel("/odom", context=ctx)
+        self._log = fch.LogChannel("/log", context=ctx)
+        self._imu = foxglove.Channel("/imu", schema=_IMU_SCHEMA, message_encoding="json", context=ctx)
+        self._step = foxglove.Channel(
+            "/rollout/step", schema=_STEP_SCHEMA, message_encoding="json", context=ctx
+        )
+        self._frames = [body_frames(model, i) for i in range(n_envs)]
+        self._parent = model.body_parentid
+        hinge = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
+        self._hinges = np.array(hinge)
+        self._hinge_names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in hinge]
+        act_of_joint = {int(model.actuator_trnid[a, 0]): a for a in range(model.nu)}
+        self._hinge_actuator = [act_of_joint.get(j) for j in hinge]
+        self._touch = []
+        for leg in C.LEGS:
+            s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, f"{C.foot_name(leg)}_touch")
+            self._touch.append(int(model.sensor_adr[s]))
+        self._sensor = {}
+        for name in ("imu_quat", "imu_gyro", "imu_acc"):
+            s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+            self._sensor[name] = slice(
+                int(model.sensor_adr[s]), int(model.sensor_adr[s] + model.sensor_dim[s])
+            )
+        self.closed = False
+
+    # --- static content --------------------------------------------------------------------------
+    def write_metadata(self, name: str, data: dict) -> None:
+        self._writer.write_metadata(name, {k: str(v) for k, v in data.items()})
+
+    def attach(self, name: str, data: bytes, media_type: str) -> None:
+        self._writer.attach(log_time=0, create_time=0, name=name, media_type=media_type, data=data)
+
+    def write_scene(self, t_ns: int = 0) -> None:
+        """The static scene: robot geoms per env in body frames, the floor once in "world"; flushed."""
+        entities = []
+        for g in _drawn_geoms(self.model):
+            b = int(self.model.geom_bodyid[g])
+            envs = [0] if b == 0 else range(self.n_envs)
+            for i in envs:
+                frame = self._frames[i][b]
+                eid = f"geom{g}" if b == 0 else f"env{i}/geom{g}"
+                e = geom_entity(self.model, g, frame, eid)
+                if e is not None:
+                    entities.append(e)
+        self._scene.log(fm.SceneUpdate(entities=entities), log_time=t_ns)
+        self.flush()
+
+    # --- per step ----------------------------------------------------------------------------------
+    def log(self, t_ns: int, level: str, message: str) -> None:
+        lvl = {"info": fm.LogLevel.Info, "warning": fm.LogLevel.Warning, "error": fm.LogLevel.Error}[level]
+        self._log.log(fm.Log(timestamp=_ts(t_ns), level=lvl, message=message, name="rollout"), log_time=t_ns)
+
+    def write_step(self, t_ns: int, traj, k: int, extra: dict | None = None) -> None:
+        """Writes step k of a host Trajectory [T, B, ...] (quadson_mjx.rollout) at time t_ns."""
+        ts = _ts(t_ns)
+        rel_pos, rel_quat = local_transforms(self.model, traj.xpos[k], traj.xquat[k])  # (B, nbody, .)
+        tfs = []
+        for i in range(self.n_envs):
+            frames = self._frames[i]
+            for b in range(1, self.model.nbody):
+                tfs.append(
+                    fm.FrameTransform(
+                        timestamp=ts,
+                        parent_frame_id=frames[self._parent[b]],
+                        child_frame_id=frames[b],
+                        translation=_vec(rel_pos[i, b]),
+                        rotation=_quat_xyzw(rel_quat[i, b]),
+                    )
+                )
+        self._tf.log(fm.FrameTransforms(transforms=tfs), log_time=t_ns)
+
+        qpos, qvel = traj.qpos[k], traj.qvel[k]
+        joints = []
+        for i in range(self.n_envs):
+            for j, name, act in zip(self._hinges, self._hinge_names, self._hinge_actuator, strict=True):
+                joints.append(
+                    fm.JointState(
+                        name=f"env{i}/{name}",
+                        position=float(qpos[i, self.model.jnt_qposadr[j]]),
+                        velocity=float(qvel[i, self.model.jnt_dofadr[j]]),
+                        effort=None if act is None else float(traj.actuator_force[k, i, act]),
+                    )
+                )
+        self._joints.log(fm.JointStates(timestamp=ts, joints=joints), log_time=t_ns)
+
+        for i in range(self.n_envs):
+            base_frame = self._frames[i][1]
+            self._odom.log(
+                fm.Odometry(
+                    timestamp=ts,
+                    frame_id="world",
+                    body_frame_id=base_frame,
+                    pose=_pose(qpos[i, 0:3], qpos[i, 3:7]),
+                    linear_velocity=_vec(traj.lin_vel[k, i]),
+                    angular_velocity=_vec(traj.ang_vel[k, i]),
+                ),
+                log_time=t_ns,
+            )
+            sd = traj.sensordata[k, i]
+            q = sd[self._sensor["imu_quat"]]
+            imu = {
+                "env": i,
+                "frame_id": base_frame,
+                "orientation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]},
+                "angular_velocity": dict(zip("xyz", sd[self._sensor["imu_gyro"]], strict=True)),
+                "linear_acceleration": dict(zip("xyz", sd[self._sensor["imu_acc"]], strict=True)),
+            }
+            self._imu.log(_dumps(imu), log_time=t_ns)
+            touch = sd[self._touch]
+            rpy, v, w = traj.rpy[k, i], traj.lin_vel[k, i], traj.ang_vel[k, i]
+            step = {
+                "env": i,
+                "episode_step": int(traj.episode_step[k, i]),
+                "episode_time_s": float(traj.episode_step[k, i]) * self._ctrl_dt,
+                "command": dict(zip(("vx", "vy", "yaw_rate"), traj.command[k, i], strict=True)),
+                "base": {
+                    "x": qpos[i, 0],
+                    "y": qpos[i, 1],
+                    "z": qpos[i, 2],
+                    "roll": rpy[0],
+                    "pitch": rpy[1],
+                    "yaw": rpy[2],
+                    "vx": v[0],
+                    "vy": v[1],
+                    "vz": v[2],
+                    "wx": w[0],
+                    "wy": w[1],
+                    "wz": w[2],
+                },
+                "observation": traj.obs[k, i],
+                "action": traj.action[k, i],
+                "foot_targets": {leg: traj.foot_targets[k, i, n] for n, leg in enumerate(C.LEGS)},
+                "reward": {"total": traj.reward[k, i], **{n: v[k, i] for n, v in traj.reward_terms.items()}},
+                "contacts": {leg: bool(touch[n] > 0) for n, leg in enumerate(C.LEGS)},
+                "foot_force_n": {leg: touch[n] for n, leg in enumerate(C.LEGS)},
+                "closure_residual_m": {leg: traj.closure_residual[k, i, n] for n, leg in enumerate(C.LEGS)},
+                "done": bool(traj.done[k, i]),
+                "nan_reset": bool(traj.nan_reset[k, i]),
+                **(extra or {}),
+            }
+            self._step.log(_dumps(step), log_time=t_ns)
+
+    def flush(self) -> None:
+        self._writer.flush()
+
+    def close(self) -> None:
+        if not self.closed:
+            self._writer.close()
+            self.closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _dumps(message: dict) -> bytes:
+    return json.dumps(_to_json(message), allow_nan=False).encode()
+
+
+def _to_json(x):
+    if isinstance(x, dict):
+        return {k: _to_json(v) for k, v in x.items()}
+    if isinstance(x, bool | str | int) or x is None:
+        return x
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    return json_safe(x)
+
+
+_NUM = {"type": ["number", "null"]}
+_XYZ = {"type": "object", "properties": {k: _NUM for k in "xyz"}}
+_IMU_SCHEMA = {
+    "title": "quadson.Imu",
+    "type": "object",
+    "properties": {
+        "env": {"type": "integer"},
+        "frame_id": {"type": "string"},
+        "orientation": {"type": "object", "properties": {k: _NUM for k in "xyzw"}},
+        "angular_velocity": _XYZ,
+        "linear_acceleration": _XYZ,
+    },
+}
+_PER_LEG_VEC = {"type": "object", "properties": {leg: {"type": "array", "items": _NUM} for leg in C.LEGS}}
+_PER_LEG_NUM = {"type": "object", "properties": {leg: _NUM for leg in C.LEGS}}
+_STEP_SCHEMA = {
+    "title": "quadson.RolloutStep",
+    "type": "object",
+    "properties": {
+        "env": {"type": "integer"},
+        "episode_step": {"type": "integer"},
+        "episode_time_s": _NUM,
+        "command": {"type": "object", "properties": {k: _NUM for k in ("vx", "vy", "yaw_rate")}},
+        "base": {
+            "type": "object",
+            "properties": {
+                k: _NUM for k in ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
+            },
+        },
+        "observation": {"type": "array", "items": _NUM},
+        "action": {"type": "array", "items": _NUM},
+        "foot_targets": _PER_LEG_VEC,
+        "reward": {"type": "object", "additionalProperties": _NUM},
+        "contacts": {"type": "object", "properties": {leg: {"type": "boolean"} for leg in C.LEGS}},
+        "foot_force_n": _PER_LEG_NUM,
+        "closure_residual_m": _PER_LEG_NUM,
+        "done": {"type": "boolean"},
+        "nan_reset": {"type": "boolean"},
+    },
+}
+
+
+def step_time_ns(step_index: int, ctrl_dt: float) -> int:
+    """Simulation time [ns] at the end of control step `step_index` (0-based) of a rollout."""
+    return int(round((step_index + 1) * ctrl_dt * 1e9))
+
+
+def record(
+    path: str | Path,
+    env,
+    controller,
+    rng,
+    n_envs: int,
+    n_steps: int,
+    command=None,
+    segment_steps: int = 250,
+    metadata: dict | None = None,
+    overwrite: bool = False,
+) -> dict:
+    """Runs `quadson_mjx.rollout.run` and writes it to `path`. Flushes after the static scene, at
+    every step where an episode ends and after every segment. -> {"steps", "falls", "nan_resets"}."""
+    from quadson_mjx import rollout as qrollout
+    from quadson_mjx.config import to_json
+    from quadson_mjx.model import model_xml_text
+    from quadson_mjx.training import versions
+
+    ctrl_dt = env.ctrl_dt
+    falls = nan_resets = 0
+    with RolloutWriter(path, env.mj_model, n_envs, ctrl_dt, overwrite=overwrite) as w:
+        info = {
+            "controller": controller.name,
+            "n_envs": n_envs,
+            "n_steps": n_steps,
+            "ctrl_dt_s": ctrl_dt,
+            "terrain": env.config.terrain,
+            "command": "sampled per env" if command is None else json.dumps([float(c) for c in command]),
+            **(metadata or {}),
+        }
+        w.write_metadata("rollout", info)
+        w.write_metadata("env_config", {"json": to_json(env.config)})
+        w.write_metadata("versions", versions())
+        w.attach("quadson.xml", model_xml_text(env.config.terrain).encode(), "application/xml")
+        w.log(0, "info", f"start: {controller.name}, {n_envs} env(s), {n_steps} steps of {ctrl_dt} s")
+        w.write_scene(0)
+        for start, traj in qrollout.run(env, controller, rng, n_envs, n_steps, segment_steps, command):
+            for k in range(traj.done.shape[0]):
+                t_ns = step_time_ns(start + k, ctrl_dt)
+                w.write_step(t_ns, traj, k)
+                ended = np.flatnonzero(traj.done[k])
+                for i in ended:
+                    r, p, _ = np.degrees(traj.rpy[k, i])
+                    if traj.nan_reset[k, i]:
+                        nan_resets += 1
+                        w.log(
+                            t_ns,
+                            "error",
+                            f"env{i}: non-finite physics at episode step {traj.episode_step[k, i]}; reset",
+                        )
+                    else:
+                        falls += 1
+                        w.log(
+                            t_ns,
+                            "warning",
+                            f"env{i}: fell at {traj.episode_step[k, i] * ctrl_dt:.2f} s (roll {r:.0f} deg, pitch "
+                            f"{p:.0f} deg, height {traj.qpos[k, i, 2]:.3f} m); reset",
+                        )
+                if len(ended):
+                    w.flush()
+            w.flush()
+        w.log(
+            step_time_ns(n_steps - 1, ctrl_dt),
+            "info",
+            f"end: {falls} fall(s), {nan_resets} non-finite reset(s)",
+        )
+    return {"steps": n_steps, "falls": falls, "nan_resets": nan_resets}

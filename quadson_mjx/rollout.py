@@ -1,0 +1,221 @@
+"""Batched, headless rollouts of a controller in the MJX environment, and the controllers.
+
+A controller acts on one environment; `make_rollout` vmaps it with `env.step` over B environments
+and scans T control steps in one jitted function, recording per-step arrays `[T, B, ...]` that the
+host then writes (quadson_mjx.foxglove_mcap) or summarises (quadson_mjx.report). A long rollout runs
+as consecutive segments of the same compiled scan, so a writer can flush between them.
+
+An environment whose episode ends (fall or non-finite physics) restarts from its first state with
+the same command and a fresh controller state; `done` marks the step that ended the episode.
+
+Controllers (`Controller(name, init, act)`, act: (carry, env_state, key) -> (carry, action)):
+  * `gait_only`: the gait open loop (zero action).
+  * `pid_stabilizer`: gait + seed 003's roll/pitch PID; its body roll/pitch command becomes foot
+    offsets through body kinematics (`pid_action`).
+  * `policy_controller`: gait + a trained policy (`quadson_mjx.training.load_policy`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from quadson_mjx import gait
+from quadson_mjx import model as qmodel
+from quadson_mjx.env import quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.stabilizer import SEED_003_GAINS, PidGains, pid_init, pid_step
+
+CONTROLLERS = ("gait", "pid")  # named controllers; a policy comes from a run directory
+
+
+class Controller(NamedTuple):
+    name: str
+    init: Callable[[], Any]  # () -> carry of one environment
+    act: Callable  # (carry, brax State of one env, key) -> (carry, action (action_size,))
+
+
+def _pad_action(env, offsets12):
+    """(12,) normalised foot offsets -> (action_size,), zero for the gait-scaling actions if any."""
+    return jnp.concatenate([offsets12, jnp.zeros(env.action_size - 12, offsets12.dtype)])
+
+
+def gait_only(env) -> Controller:
+    """The gait alone: zero foot offsets."""
+    return Controller(
+        "gait", lambda: jnp.zeros(()), lambda carry, state, key: (carry, jnp.zeros(env.action_size))
+    )
+
+
+def pid_action(gait_targets, u_roll_pitch, action_scale_m):
+    """Body roll/pitch command -> normalised foot-offset action (seed 003 through body kinematics).
+
+    gait_targets: (4, 3) the gait's foot targets, shoulder frames [m]; u_roll_pitch: (2,) body roll,
+    pitch command [rad] -> (12,) offsets = apply_body_offset(targets, (0, 0, 0, u_roll, u_pitch, 0))
+    - targets, clipped to +-action_scale_m and divided by it (so in [-1, 1]).
+    """
+    zero = jnp.zeros((), gait_targets.dtype)
+    pose = jnp.stack([zero, zero, zero, u_roll_pitch[0], u_roll_pitch[1], zero])
+    offsets = gait.apply_body_offset(gait_targets, pose) - gait_targets
+    return (jnp.clip(offsets, -action_scale_m, action_scale_m) / action_scale_m).reshape(12)
+
+
+def pid_stabilizer(env, gains: PidGains = SEED_003_GAINS) -> Controller:
+    """Gait + seed 003's roll/pitch PID. Measured roll, pitch: the observation's first two values
+    (with sensor noise when the env randomizes), as the robot's IMU would give them."""
+    scale = float(env.config.action_scale_m)
+
+    def act(carry, state, key):
+        carry, u = pid_step(carry, state.obs[:2], gains)
+        return carry, _pad_action(env, pid_action(env.gait_targets(state.info), u, scale))
+
+    return Controller("pid", pid_init, act)
+
+
+def policy_controller(policy, name: str = "policy") -> Controller:
+    """policy(obs, key) -> (action, extras), e.g. from `training.load_policy`."""
+    return Controller(
+        name, lambda: jnp.zeros(()), lambda carry, state, key: (carry, policy(state.obs, key)[0])
+    )
+
+
+def named_controller(env, name: str) -> Controller:
+    if name == "gait":
+        return gait_only(env)
+    if name == "pid":
+        return pid_stabilizer(env)
+    raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS} or pass a run directory")
+
+
+# --- the batched rollout ----------------------------------------------------------------------------
+
+
+class Carry(NamedTuple):
+    state: Any  # brax State, batched [B]
+    first: Any  # the episode's first State, batched [B]
+    ctrl: Any  # controller carry, batched [B]
+    episode_step: jax.Array  # (B,) int32 control steps into the current episode
+    key: jax.Array
+
+
+class Trajectory(NamedTuple):
+    """Per-step arrays [T, B, ...] of a rollout (SI; quaternions wxyz as MuJoCo writes them)."""
+
+    episode_step: jax.Array  # (T, B) control step within the episode after this step (1 = first)
+    obs: jax.Array  # (T, B, obs) the observation the controller acted on
+    action: jax.Array  # (T, B, act) in [-1, 1]
+    foot_targets: jax.Array  # (T, B, 4, 3) shoulder frames [m], gait + offsets
+    command: jax.Array  # (T, B, 3) vx [m/s], vy [m/s], yaw rate [rad/s]
+    qpos: jax.Array  # (T, B, nq) after the step
+    qvel: jax.Array  # (T, B, nv)
+    xpos: jax.Array  # (T, B, nbody, 3) world [m]
+    xquat: jax.Array  # (T, B, nbody, 4) world, wxyz
+    rpy: jax.Array  # (T, B, 3) base roll, pitch, yaw [rad]
+    lin_vel: jax.Array  # (T, B, 3) base linear velocity, body frame [m/s]
+    ang_vel: jax.Array  # (T, B, 3) base angular velocity, body frame [rad/s]
+    sensordata: jax.Array  # (T, B, nsensordata)
+    actuator_force: jax.Array  # (T, B, nu) [N m]
+    closure_residual: jax.Array  # (T, B, 4) [m]
+    reward: jax.Array  # (T, B)
+    reward_terms: dict  # name -> (T, B), weighted as the env sums them
+    done: jax.Array  # (T, B) bool: this step ended the episode (then the env restarts)
+    nan_reset: jax.Array  # (T, B) bool: it ended because the physics went non-finite
+
+
+def _set_command(env, state, command):
+    if command is None:
+        return state
+    info = dict(state.info)
+    info["command"] = jnp.broadcast_to(jnp.asarray(command, jnp.float32), info["command"].shape)
+    obs = state.obs
+    if env.config.command_tracking:  # the command is the observation's tail
+        obs = obs.at[..., -3:].set(info["command"])
+    return state.replace(info=info, obs=obs)
+
+
+def init_carry(env, controller: Controller, rng, n_envs: int, command=None) -> Carry:
+    """First states of n_envs environments (command (3,) overrides the sampled one)."""
+    k_reset, k_run = jax.random.split(rng)
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(k_reset, n_envs))
+    state = _set_command(env, state, command)
+    ctrl = jax.vmap(lambda _: controller.init())(jnp.arange(n_envs))
+    return Carry(state, state, ctrl, jnp.zeros(n_envs, jnp.int32), k_run)
+
+
+def make_rollout(env, controller: Controller, n_steps: int):
+    """-> jitted rollout(carry) -> (carry, Trajectory [n_steps, B]) of consecutive control steps."""
+    ids = qmodel.model_ids(env.mj_model)
+    act_b = jax.vmap(controller.act)
+    step_b = jax.vmap(env.step)
+    init_b = jax.vmap(lambda _: controller.init())
+
+    def one(carry: Carry, _):
+        key, k_act = jax.random.split(carry.key)
+        n = carry.episode_step.shape[0]
+        ctrl, action = act_b(carry.ctrl, carry.state, jax.random.split(k_act, n))
+        nxt = step_b(carry.state, action)
+        d = nxt.pipeline_state
+        quat = d.qpos[:, 3:7]
+        done = nxt.done.astype(bool)
+        rec = Trajectory(
+            episode_step=carry.episode_step + 1,
+            obs=carry.state.obs,
+            action=action,
+            foot_targets=nxt.info["foot_targets"],
+            command=nxt.info["command"],
+            qpos=d.qpos,
+            qvel=d.qvel,
+            xpos=d.xpos,
+            xquat=d.xquat,
+            rpy=quat_to_rpy(quat),
+            lin_vel=quat_rotate_inverse(quat, d.qvel[:, 0:3]),
+            ang_vel=d.qvel[:, 3:6],
+            sensordata=d.sensordata,
+            actuator_force=d.actuator_force,
+            closure_residual=qmodel.closure_residual_mjx(d.site_xpos, ids),
+            reward=nxt.reward,
+            reward_terms={k[len("reward/") :]: v for k, v in nxt.metrics.items() if k.startswith("reward/")},
+            done=done,
+            nan_reset=nxt.metrics["nan_reset"] > 0,
+        )
+
+        def restart(first, current):
+            mask = jnp.reshape(done, done.shape + (1,) * (current.ndim - 1))
+            return jnp.where(mask, first, current)
+
+        state = jax.tree.map(restart, carry.first, nxt.replace(done=jnp.zeros_like(nxt.done)))
+        ctrl = jax.tree.map(restart, init_b(jnp.arange(n)), ctrl)
+        episode_step = jnp.where(done, 0, carry.episode_step + 1)
+        return Carry(state, carry.first, ctrl, episode_step, key), rec
+
+    @jax.jit
+    def rollout(carry: Carry):
+        return jax.lax.scan(one, carry, None, length=n_steps)
+
+    return rollout
+
+
+def to_host(traj: Trajectory) -> Trajectory:
+    return jax.tree.map(np.asarray, jax.device_get(traj))
+
+
+def run(
+    env, controller: Controller, rng, n_envs: int, n_steps: int, segment_steps: int = 250, command=None
+) -> Iterator[tuple[int, Trajectory]]:
+    """Yields (first step index, host Trajectory [t, B]) segment by segment until n_steps are done.
+    Every segment but the last has segment_steps steps (one compile for all of them)."""
+    carry = init_carry(env, controller, rng, n_envs, command)
+    seg = max(1, min(segment_steps, n_steps))
+    full = make_rollout(env, controller, seg)
+    done_steps = 0
+    while done_steps < n_steps:
+        carry, traj = full(carry)
+        traj = to_host(traj)
+        take = min(seg, n_steps - done_steps)
+        if take < seg:
+            traj = jax.tree.map(lambda a, n=take: a[:n], traj)
+        yield done_steps, traj
+        done_steps += take
