@@ -138,6 +138,23 @@ HIP_MASS = 0.3
 LINK_MASSES = {"link1": 0.03, "link2": 0.05, "link4": 0.035, "link5": 0.03}
 TOTAL_MASS = BASE_MASS + NUM_LEGS * (HIP_MASS + sum(LINK_MASSES.values()))
 
+# --- centre of mass [m] (an assumption, not a measurement: randomize it) ---
+# The gait table puts the stance feet ahead of the body centre. At the trot's stance midpoint (the
+# `home` pose) the front feet are at body x = 15.3 - 2 = 13.3 cm and the rear feet at -15.3 + 7 =
+# -8.3 cm: the centre of support is SUPPORT_CENTRE_X = +2.5 cm. A gait table tuned on hardware
+# carries the CoM near its support centre; with the CoM at the body centre (the legs alone put it at
+# +0.21 cm) every gait fell nose-up in 1-3.5 s (models/quadson/README.md, "Centre of mass").
+# Assumed layout: the battery and the electronics (0.6 kg of the base) sit forward in the frame,
+# their mean at +12.5 cm (the base box reaches +17 cm), so the base's own CoM is at
+# (0.35 + 0.25) x 0.125 / 1.5 = +5.0 cm. Derivation of the number: the legs at home contribute
+# 3.28 kg x 0.00213 m = 0.0070 kg m (compiled model, base CoM at 0), and
+# (3.28 x 0.025 - 0.0070) / 1.5 = 0.0500 m puts the whole robot's CoM on SUPPORT_CENTRE_X
+# (tests/test_model.py). Open-loop trot and walk stay up for BASE_COM_X in [0.02, 0.07] m and fall
+# at 0: randomize within about +-2 cm.
+_HOME_FOOT_X = STANCE_START_X + STANCE_DIRECTION * 0.5 * GAITS["trot"]["step_length_m"]  # leg frame
+SUPPORT_CENTRE_X = float(np.mean(SHOULDER_POS[:, 0] + SHOULDER_ROT[:, 0, 0] * _HOME_FOOT_X))  # 0.025
+BASE_COM_X = 0.05  # base CoM ahead of the body centre (base frame x)
+
 # --- shapes used for inertia, collision and drawing [m] ---
 BASE_HALF_SIZE = (0.17, 0.08, 0.04)  # box around the frame; its inertia is a solid box's
 HIP_HALF_SIZE = (L0 / 2 + 0.025, 0.025, 0.02)  # box spanning both hip motors (leg frame x, y, z)

@@ -234,7 +234,7 @@ def robot_xml() -> str:
   <worldbody>
     <body name="{C.ROOT_BODY}" pos="0 0 {_f(HOME_BASE_HEIGHT)}" childclass="quadson">
       <freejoint name="root"/>
-      {_box_inertia(C.BASE_MASS, C.BASE_HALF_SIZE)}
+      {_box_inertia(C.BASE_MASS, C.BASE_HALF_SIZE, (C.BASE_COM_X, 0.0, 0.0))}
       <geom name="base_collision" class="collision" type="box" size="{_v(C.BASE_HALF_SIZE)}"/>
       <geom class="visual" type="box" size="{_v(C.BASE_HALF_SIZE)}" rgba="0.3 0.3 0.35 1"/>
       <site name="{C.IMU_SITE}" size="0.01"/>

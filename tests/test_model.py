@@ -108,6 +108,20 @@ def test_masses_equal_constants(m, ids):
             assert m.body(f"{leg}_{link}").mass[0] == pytest.approx(mass)
 
 
+def test_centre_of_mass_at_home_on_the_support_centre(m, ids):
+    """The assumed CoM placement (constants.BASE_COM_X): at `home` the whole robot's CoM lies over the
+    centre of the four feet, which is +2.5 cm by hand from the gait table: front feet at
+    15.3 - (-4 + 12 / 2) = 13.3 cm, rear feet at -15.3 + (13 - 12 / 2) = -8.3 cm, mean 2.5 cm."""
+    assert C.SUPPORT_CENTRE_X == pytest.approx(0.025, abs=1e-12)
+    d = _home_data(m)
+    feet_x = d.site_xpos[ids.foot_site, 0]
+    np.testing.assert_allclose(feet_x, [0.133, 0.133, -0.083, -0.083], atol=1e-9)
+    # MuJoCo's subtree CoM of the compiled model: 0.024999 m; BASE_COM_X = 0.05 is rounded from
+    # (3.28 x 0.025 - 0.0070) / 1.5, so it sits within 0.1 mm of the support centre.
+    assert d.subtree_com[ids.base_body, 0] == pytest.approx(np.mean(feet_x), abs=1e-4)
+    assert d.subtree_com[ids.base_body, 1] == pytest.approx(0.0, abs=1e-12)
+
+
 def test_contacts_only_feet_and_base_against_ground(m):
     colliding = [m.geom(i).name for i in range(m.ngeom) if m.geom_contype[i] or m.geom_conaffinity[i]]
     assert sorted(colliding) == sorted(["floor", "base_collision", *[f"{f}_collision" for f in C.FEET]])
