@@ -12,7 +12,9 @@ Topics (t = simulation time of the step's end; the static scene at t = 0):
     /odom            foxglove.Odometry         one per env per step: base pose in "world", velocities
                                                in the base frame
     /imu             JSON                      one per env per step: orientation (xyzw), angular
-                                               velocity [rad/s], linear acceleration [m/s^2]
+                                               velocity [rad/s], linear acceleration [m/s^2] of an IMU
+                                               at the base origin, from the physics state (the env
+                                               switches MuJoCo's sensors off)
     /rollout/step    JSON                      one per env per step: observation, action, foot targets,
                                                reward terms, contacts, closure residual, base state
     /log             foxglove.Log              episode starts, falls, non-finite resets, the end
@@ -255,16 +257,6 @@ class RolloutWriter:
         self._hinge_names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in hinge]
         act_of_joint = {int(model.actuator_trnid[a, 0]): a for a in range(model.nu)}
         self._hinge_actuator = [act_of_joint.get(j) for j in hinge]
-        self._touch = []
-        for leg in C.LEGS:
-            s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, f"{C.foot_name(leg)}_touch")
-            self._touch.append(int(model.sensor_adr[s]))
-        self._sensor = {}
-        for name in ("imu_quat", "imu_gyro", "imu_acc"):
-            s = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
-            self._sensor[name] = slice(
-                int(model.sensor_adr[s]), int(model.sensor_adr[s] + model.sensor_dim[s])
-            )
         self.closed = False
 
     # --- static content --------------------------------------------------------------------------
@@ -340,17 +332,16 @@ class RolloutWriter:
                 ),
                 log_time=t_ns,
             )
-            sd = traj.sensordata[k, i]
-            q = sd[self._sensor["imu_quat"]]
+            q = qpos[i, 3:7]  # the IMU sits at the base origin, axes aligned with the base
             imu = {
                 "env": i,
                 "frame_id": base_frame,
                 "orientation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]},
-                "angular_velocity": dict(zip("xyz", sd[self._sensor["imu_gyro"]], strict=True)),
-                "linear_acceleration": dict(zip("xyz", sd[self._sensor["imu_acc"]], strict=True)),
+                "angular_velocity": dict(zip("xyz", traj.ang_vel[k, i], strict=True)),
+                "linear_acceleration": dict(zip("xyz", traj.imu_acc[k, i], strict=True)),
             }
             self._imu.log(_dumps(imu), log_time=t_ns)
-            touch = sd[self._touch]
+            touch = traj.foot_force[k, i]
             rpy, v, w = traj.rpy[k, i], traj.lin_vel[k, i], traj.ang_vel[k, i]
             step = {
                 "env": i,

@@ -23,7 +23,9 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from mujoco import mjx
 
+from quadson_mjx import constants as C
 from quadson_mjx import gait
 from quadson_mjx import model as qmodel
 from quadson_mjx.env import quat_rotate_inverse, quat_to_rpy
@@ -90,6 +92,38 @@ def named_controller(env, name: str) -> Controller:
     raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS} or pass a run directory")
 
 
+# --- what the robot's sensors would read, from the physics state ---------------------------------------
+# The env switches MuJoCo's sensors off for speed, so the IMU and foot contacts are computed here.
+
+
+def imu_acceleration(quat, lin_acc_world, gravity):
+    """Accelerometer at the base origin: base-frame (acceleration - gravity) [m/s^2].
+    quat (4,) wxyz, lin_acc_world (3,) (free joint qacc[0:3]), gravity (3,) (model.opt.gravity)."""
+    return quat_rotate_inverse(quat, lin_acc_world - gravity)
+
+
+def foot_geom_ids(mj_model) -> np.ndarray:
+    """(4,) collision geom of each foot, LEGS order."""
+    import mujoco
+
+    return np.array(
+        [mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_GEOM, f"{leg}_foot_collision") for leg in C.LEGS]
+    )
+
+
+def foot_forces(sys, data, foot_geoms):
+    """(4,) normal contact force on each foot [N] from MJX's constraint forces (one data, not batched)."""
+    from mujoco.mjx._src import support  # contact_force is not exported by mjx's public API
+
+    contact = data._impl.contact
+    n = contact.dist.shape[0]
+    normal = jnp.stack([support.contact_force(sys, data, i)[0] for i in range(n)]) if n else jnp.zeros(0)
+    involved = (contact.geom1[None, :] == foot_geoms[:, None]) | (
+        contact.geom2[None, :] == foot_geoms[:, None]
+    )
+    return jnp.sum(jnp.where(involved, normal[None, :], 0.0), axis=1)
+
+
 # --- the batched rollout ----------------------------------------------------------------------------
 
 
@@ -116,7 +150,8 @@ class Trajectory(NamedTuple):
     rpy: jax.Array  # (T, B, 3) base roll, pitch, yaw [rad]
     lin_vel: jax.Array  # (T, B, 3) base linear velocity, body frame [m/s]
     ang_vel: jax.Array  # (T, B, 3) base angular velocity, body frame [rad/s]
-    sensordata: jax.Array  # (T, B, nsensordata)
+    imu_acc: jax.Array  # (T, B, 3) what an accelerometer at the base origin reads, base frame [m/s^2]
+    foot_force: jax.Array  # (T, B, 4) normal contact force on each foot [N] (0: no contact)
     actuator_force: jax.Array  # (T, B, nu) [N m]
     closure_residual: jax.Array  # (T, B, 4) [m]
     reward: jax.Array  # (T, B)
@@ -148,6 +183,8 @@ def init_carry(env, controller: Controller, rng, n_envs: int, command=None) -> C
 def make_rollout(env, controller: Controller, n_steps: int):
     """-> jitted rollout(carry) -> (carry, Trajectory [n_steps, B]) of consecutive control steps."""
     ids = qmodel.model_ids(env.mj_model)
+    foot_geoms = jnp.asarray(foot_geom_ids(env.mj_model))
+    gravity = jnp.asarray(env.mj_model.opt.gravity, jnp.float32)
     act_b = jax.vmap(controller.act)
     step_b = jax.vmap(env.step)
     init_b = jax.vmap(lambda _: controller.init())
@@ -158,6 +195,9 @@ def make_rollout(env, controller: Controller, n_steps: int):
         ctrl, action = act_b(carry.ctrl, carry.state, jax.random.split(k_act, n))
         nxt = step_b(carry.state, action)
         d = nxt.pipeline_state
+        # mjx.step leaves xpos/xquat/site_xpos at the last substep's start: recompute them for the
+        # final qpos so that frames, joint states and base pose describe the same instant
+        kin = jax.vmap(mjx.kinematics, in_axes=(None, 0))(env.sys, d)
         quat = d.qpos[:, 3:7]
         done = nxt.done.astype(bool)
         rec = Trajectory(
@@ -168,14 +208,15 @@ def make_rollout(env, controller: Controller, n_steps: int):
             command=nxt.info["command"],
             qpos=d.qpos,
             qvel=d.qvel,
-            xpos=d.xpos,
-            xquat=d.xquat,
+            xpos=kin.xpos,
+            xquat=kin.xquat,
             rpy=quat_to_rpy(quat),
             lin_vel=quat_rotate_inverse(quat, d.qvel[:, 0:3]),
             ang_vel=d.qvel[:, 3:6],
-            sensordata=d.sensordata,
+            imu_acc=jax.vmap(imu_acceleration, in_axes=(0, 0, None))(quat, d.qacc[:, 0:3], gravity),
+            foot_force=jax.vmap(lambda data: foot_forces(env.sys, data, foot_geoms))(d),
             actuator_force=d.actuator_force,
-            closure_residual=qmodel.closure_residual_mjx(d.site_xpos, ids),
+            closure_residual=qmodel.closure_residual_mjx(kin.site_xpos, ids),
             reward=nxt.reward,
             reward_terms={k[len("reward/") :]: v for k, v in nxt.metrics.items() if k.startswith("reward/")},
             done=done,
