@@ -1,0 +1,286 @@
+"""Rollout MCAP files: topics, schemas, counts, timestamps, transforms against MuJoCo C and the five-bar
+FK, recovery of a truncated file, and the PID controller wrapper against hand-derived numbers.
+
+One compiled rollout (2 envs x 6 steps, two segments of 3) is shared by the whole module.
+"""
+
+import json
+import math
+import types
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from quadson_mjx import constants as C
+from quadson_mjx import fivebar, mcap_check
+from quadson_mjx import rollout as R
+from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env_config import env_config
+from quadson_mjx.foxglove_mcap import record, step_time_ns
+
+N_ENVS, N_STEPS, SEGMENT = 2, 6, 3
+CTRL_DT = 0.02
+
+
+@pytest.fixture(scope="module")
+def env():
+    return QuadsonEnv(env_config())
+
+
+@pytest.fixture(scope="module")
+def rollout_file(env, tmp_path_factory):
+    path = tmp_path_factory.mktemp("rollout") / "pid.mcap"
+    summary = record(
+        path,
+        env,
+        R.pid_stabilizer(env),
+        jax.random.PRNGKey(0),
+        N_ENVS,
+        N_STEPS,
+        command=(0.1, 0.0, 0.25),
+        segment_steps=SEGMENT,
+        metadata={"seed": 0},
+    )
+    assert summary == {"steps": N_STEPS, "falls": 0, "nan_resets": 0}
+    return path
+
+
+@pytest.fixture(scope="module")
+def messages(rollout_file):
+    return mcap_check.read_messages(rollout_file)
+
+
+def _topic(messages, topic):
+    return [(t, m) for top, t, m in messages if top == topic]
+
+
+def test_topics_schemas_counts_and_times(rollout_file, messages):
+    report = mcap_check.check(rollout_file)
+    assert report.complete, report.error
+    n = N_ENVS * N_STEPS
+    assert dict(report.counts) == {
+        "/tf": N_STEPS,
+        "/joint_states": N_STEPS,
+        "/scene": 1,
+        "/odom": n,
+        "/imu": n,
+        "/rollout/step": n,
+        "/log": 2,  # start and end: no falls in 0.12 s
+    }
+    assert report.schemas["/tf"] == "foxglove.FrameTransforms"
+    assert report.schemas["/scene"] == "foxglove.SceneUpdate"
+    assert report.schemas["/joint_states"] == "foxglove.JointStates"
+    assert report.schemas["/odom"] == "foxglove.Odometry"
+    assert report.schemas["/log"] == "foxglove.Log"
+    assert report.metadata == ["rollout", "env_config", "versions"]
+    assert report.attachments == ["quadson.xml"]
+    steps = [round((k + 1) * CTRL_DT * 1e9) for k in range(N_STEPS)]
+    assert [t for t, _ in _topic(messages, "/tf")] == steps  # simulation time, not wall clock
+    assert [t for t, _ in _topic(messages, "/scene")] == [0]
+    assert [t for t, _ in _topic(messages, "/rollout/step")] == [s for s in steps for _ in range(N_ENVS)]
+    assert mcap_check.main([str(rollout_file), "--rollout"]) == 0
+    with open(rollout_file, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "quadson_mjx.rollout"
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert json.loads(meta["env_config"]["json"])["terrain"] == "flat"
+        assert meta["rollout"]["controller"] == "pid" and meta["rollout"]["n_envs"] == str(N_ENVS)
+        assert json.loads(meta["rollout"]["command"]) == [0.1, 0.0, 0.25]
+        assert "git_revision" in meta["versions"]
+        xml = next(iter(reader.iter_attachments())).data.decode()
+        assert "<mujoco" in xml and "equality" in xml
+
+
+def test_json_messages_are_finite_and_complete(rollout_file):
+    def no_nan(token):
+        raise AssertionError(f"non-JSON number {token}")
+
+    with open(rollout_file, "rb") as f:
+        for _, channel, msg in make_reader(f).iter_messages(topics=["/rollout/step", "/imu"]):
+            d = json.loads(msg.data, parse_constant=no_nan)
+            if channel.topic == "/imu":
+                q = d["orientation"]
+                assert math.isclose(math.hypot(q["x"], q["y"], q["z"], q["w"]), 1.0, abs_tol=1e-5)
+                continue
+            assert len(d["observation"]) == 29 and len(d["action"]) == 12
+            assert set(d["foot_targets"]) == set(C.LEGS) and len(d["foot_targets"]["FL"]) == 3
+            assert {"total", "forward_velocity_exp", "orientation_l2"} <= set(d["reward"])
+            assert set(d["contacts"]) == set(C.LEGS)
+            for leg in C.LEGS:  # a foot is in contact exactly when the ground pushes it
+                assert d["foot_force_n"][leg] >= 0 and d["contacts"][leg] == (d["foot_force_n"][leg] > 0)
+            assert all(0 <= v < 2e-3 for v in d["closure_residual_m"].values())  # loop closed to mm
+            assert d["command"] == pytest.approx({"vx": 0.1, "vy": 0.0, "yaw_rate": 0.25})
+            assert max(abs(a) for a in d["action"]) <= 1.0
+
+
+def test_scene_draws_every_robot_geom_per_env_and_the_floor_once(env, messages):
+    ((_, scene),) = _topic(messages, "/scene")
+    frames = [e["frame_id"] for e in scene["entities"]]
+    assert frames.count("world") == 1
+    m = env.mj_model
+    # 26 robot geoms, the collision box coincides with the visual box and is drawn once: 25 per env
+    assert len(frames) == 1 + N_ENVS * 25
+    fl2 = [e for e in scene["entities"] if e["frame_id"] == "env1/FL_link2"]
+    assert (
+        sum(len(e["cylinders"]) for e in fl2) == 1 and sum(len(e["spheres"]) for e in fl2) == 3
+    )  # capsule + foot
+    foot = [e for e in fl2 if len(e["spheres"]) == 1][0]["spheres"][0]
+    assert foot["size"]["x"] == pytest.approx(2 * C.FOOT_RADIUS)
+    assert foot["pose"]["position"]["x"] == pytest.approx(C.L2 + C.L3)
+    del m
+
+
+def _compose(tfs, child):
+    """World pose (position, rotation matrix) of frame `child` from a FrameTransforms message."""
+    by_child = {t["child_frame_id"]: t for t in tfs["transforms"]}
+    pos, rot = np.zeros(3), np.eye(3)
+    chain = []
+    while child != "world":
+        t = by_child[child]
+        chain.append(t)
+        child = t["parent_frame_id"]
+    for t in reversed(chain):
+        q = t["rotation"]
+        r = np.zeros(9)
+        mujoco.mju_quat2Mat(r, np.array([q["w"], q["x"], q["y"], q["z"]]))
+        tr = t["translation"]
+        pos = pos + rot @ np.array([tr["x"], tr["y"], tr["z"]])
+        rot = rot @ r.reshape(3, 3)
+    return pos, rot
+
+
+def test_tf_puts_every_foot_where_mujoco_and_the_fivebar_fk_say(env, messages):
+    m = env.mj_model
+    d = mujoco.MjData(m)
+    tf = _topic(messages, "/tf")
+    joints = _topic(messages, "/joint_states")
+    odom = _topic(messages, "/odom")
+    assert len(tf[0][1]["transforms"]) == N_ENVS * (m.nbody - 1)
+    for k in (0, N_STEPS - 1):
+        for i in range(N_ENVS):
+            # qpos rebuilt from /odom and /joint_states; MuJoCo C forward kinematics is the reference
+            o = [
+                msg
+                for _, msg in odom[k * N_ENVS : (k + 1) * N_ENVS]
+                if msg["body_frame_id"] == f"env{i}/base"
+            ][0]
+            p, q = o["pose"]["position"], o["pose"]["orientation"]
+            qpos = np.zeros(m.nq)
+            qpos[:7] = [p["x"], p["y"], p["z"], q["w"], q["x"], q["y"], q["z"]]
+            for js in joints[k][1]["joints"]:
+                env_name, name = js["name"].split("/")
+                if env_name == f"env{i}":
+                    qpos[m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)]] = js[
+                        "position"
+                    ]
+            d.qpos[:] = qpos
+            mujoco.mj_kinematics(m, d)
+            for n, leg in enumerate(C.LEGS):
+                site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, C.foot_name(leg))
+                pos, rot = _compose(tf[k][1], f"env{i}/{leg}_link2")
+                foot = pos + rot @ m.site_pos[site]
+                np.testing.assert_allclose(foot, d.site_xpos[site], atol=2e-5)  # float32 sim state
+                # five-bar FK of the motor angles, placed by the shoulder frame and the base pose
+                angles = [
+                    qpos[m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, C.joint_name(leg, p))]]
+                    for p in C.MOTORS
+                ]
+                f_sh = np.asarray(fivebar.leg_fk(jnp.asarray(angles, jnp.float32)), np.float64)
+                base_rot = np.zeros(9)
+                mujoco.mju_quat2Mat(base_rot, qpos[3:7])
+                f_world = qpos[:3] + base_rot.reshape(3, 3) @ (C.SHOULDER_POS[n] + C.SHOULDER_ROT[n] @ f_sh)
+                # the simulated loop is closed to a fraction of a mm, which the foot amplifies ~3x
+                np.testing.assert_allclose(foot, f_world, atol=3e-3)
+
+
+def test_truncated_file_yields_its_flushed_segments(rollout_file, tmp_path):
+    # Flushes: after the scene, after each 3-step segment. Cut the file in the middle of the chunk
+    # of the second segment: the first segment (3 steps) and the scene must come back.
+    data = rollout_file.read_bytes()
+    with open(rollout_file, "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    second = [c for c in chunks if c.message_start_time == step_time_ns(SEGMENT, CTRL_DT)]
+    assert len(second) == 1
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: second[0].chunk_start_offset + second[0].chunk_length // 2])
+    report = mcap_check.check(cut)
+    assert not report.complete
+    assert report.counts["/tf"] == SEGMENT and report.counts["/rollout/step"] == SEGMENT * N_ENVS
+    assert report.counts["/scene"] == 1 and report.counts["/log"] == 1
+    assert mcap_check.main([str(cut), "--rollout"]) == 1
+    fixed = tmp_path / "fixed.mcap"
+    mcap_check.recover(cut, fixed)
+    again = mcap_check.check(fixed)
+    assert (
+        again.complete
+        and again.counts["/tf"] == SEGMENT
+        and again.schemas["/tf"] == "foxglove.FrameTransforms"
+    )
+
+
+def _rot_zyx(roll, pitch, yaw=0.0):
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(roll),
+        math.sin(roll),
+        math.cos(pitch),
+        math.sin(pitch),
+        math.cos(yaw),
+        math.sin(yaw),
+    )
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def test_pid_controller_limiter_case_by_hand(env):
+    # First PID step: u = (kp + ki dt + kd / dt) e = 0.75 e with e = -(roll, pitch). Measured
+    # (roll, pitch) = (-0.4, 0.2) / 0.75 gives u = (0.4, -0.2) before the limiter: |0.4| + |0.2| = 0.6 > 0.45,
+    # scaled by 0.75 -> (0.3, -0.15) (robots.md).
+    ctrl = R.pid_stabilizer(env)
+    obs = jnp.zeros(env.observation_size).at[:2].set(jnp.array([-0.4, 0.2]) / 0.75)
+    info = {"gait_progress": jnp.asarray(0.3), "command": jnp.array([0.3, 0.0, 0.0])}
+
+    @jax.jit
+    def act(carry, obs, info):  # as the rollout runs it: jitted
+        return ctrl.act(carry, types.SimpleNamespace(obs=obs, info=info), jax.random.PRNGKey(0))
+
+    carry, action = act(ctrl.init(), obs, info)
+    assert action.shape == (env.action_size,) and action.dtype == jnp.float32
+    # Reference: keep each foot's world point, rotate the body by roll 0.3, pitch -0.15 (ZYX), express
+    # the point in the moved shoulder frame; offset = that - target, clipped to +-5 cm, over 5 cm.
+    targets = np.asarray(env.gait_targets(info), np.float64)
+    body = _rot_zyx(0.3, -0.15)
+    expected = []
+    for n in range(4):
+        world = C.SHOULDER_POS[n] + C.SHOULDER_ROT[n] @ targets[n]
+        moved = C.SHOULDER_ROT[n].T @ (body.T @ world - C.SHOULDER_POS[n])
+        expected.append(np.clip(moved - targets[n], -0.05, 0.05) / 0.05)
+    expected = np.ravel(expected)
+    assert np.any(np.abs(expected) == 1.0)  # the clip is exercised
+    np.testing.assert_allclose(action, expected, atol=2e-5)
+    np.testing.assert_allclose(carry.error_sum, [0.4 / 0.75, -0.2 / 0.75], rtol=1e-6)
+
+
+def test_gait_only_controller_is_zero_action(env):
+    ctrl = R.gait_only(env)
+    _, a = ctrl.act(ctrl.init(), types.SimpleNamespace(obs=jnp.ones(29), info={}), jax.random.PRNGKey(0))
+    np.testing.assert_array_equal(a, np.zeros(env.action_size))
+
+
+def test_imu_acceleration_by_hand():
+    # At rest an accelerometer reads +g up; tilted by roll 90 deg about x the base's +y axis points down.
+    g = jnp.array([0.0, 0.0, -9.81])
+    np.testing.assert_allclose(
+        R.imu_acceleration(jnp.array([1.0, 0, 0, 0]), jnp.zeros(3), g), [0, 0, 9.81], atol=1e-6
+    )
+    h = math.sqrt(0.5)
+    np.testing.assert_allclose(
+        R.imu_acceleration(jnp.array([h, h, 0, 0]), jnp.zeros(3), g), [0, 9.81, 0], atol=1e-5
+    )
+    # free fall reads zero
+    np.testing.assert_allclose(R.imu_acceleration(jnp.array([1.0, 0, 0, 0]), g, g), [0, 0, 0], atol=1e-6)
