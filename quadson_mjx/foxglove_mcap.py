@@ -519,3 +519,67 @@ def record(
             f"end: {falls} fall(s), {nan_resets} non-finite reset(s)",
         )
     return {"steps": n_steps, "falls": falls, "nan_resets": nan_resets}
+
+
+def layout_json(env: int = 0) -> str:
+    """A Foxglove layout (foxglove.layouts) for rollout files: the 3D view following env{env}/base,
+    plots of base velocity against the command, roll/pitch, foot forces, closure residual, reward,
+    and the /log panel. eval/foxglove_layout.json is this text for env 0."""
+    import foxglove.layouts as fl
+
+    def series(path: str, label: str) -> fl.PlotSeries:
+        return fl.PlotSeries(value=f"/rollout/step{{env=={env}}}.{path}", label=label)
+
+    def plot(title: str, items) -> fl.SplitItem:
+        return fl.SplitItem(
+            content=fl.PlotPanel(
+                title=title,
+                config=fl.PlotConfig(paths=[series(p, lbl) for p, lbl in items], show_legend=True),
+            )
+        )
+
+    three_d = fl.ThreeDeePanel(
+        title="robot",
+        config=fl.ThreeDeeConfig(
+            follow_tf=f"env{env}/base",
+            fixed_frame="world",
+            follow_mode="follow-position",
+            camera_state=fl.ThreeDeeCameraState(distance=1.2, phi=60.0, theta_offset=45.0, perspective=True),
+        ),
+    )
+    plots = fl.SplitContainer(
+        direction="column",
+        items=[
+            plot(
+                "base velocity [m/s, rad/s]",
+                [
+                    ("base.vx", "vx"),
+                    ("command.vx", "command vx"),
+                    ("base.wz", "yaw rate"),
+                    ("command.yaw_rate", "command yaw rate"),
+                ],
+            ),
+            plot("orientation [rad]", [("base.roll", "roll"), ("base.pitch", "pitch")]),
+            plot("foot normal force [N]", [(f"foot_force_n.{leg}", leg) for leg in C.LEGS]),
+            plot("closure residual [m]", [(f"closure_residual_m.{leg}", leg) for leg in C.LEGS]),
+            plot("reward", [("reward.total", "total")]),
+        ],
+    )
+    left = fl.SplitContainer(
+        direction="column",
+        items=[
+            fl.SplitItem(proportion=3, content=three_d),
+            fl.SplitItem(proportion=1, content=fl.LogPanel(title="falls and resets")),
+        ],
+    )
+    layout = fl.Layout(
+        content=fl.SplitContainer(
+            direction="row",
+            items=[fl.SplitItem(proportion=3, content=left), fl.SplitItem(proportion=2, content=plots)],
+        )
+    )
+    return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"
+
+
+if __name__ == "__main__":  # python -m quadson_mjx.foxglove_mcap > eval/foxglove_layout.json
+    print(layout_json(), end="")

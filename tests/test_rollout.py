@@ -284,3 +284,59 @@ def test_imu_acceleration_by_hand():
     )
     # free fall reads zero
     np.testing.assert_allclose(R.imu_acceleration(jnp.array([1.0, 0, 0, 0]), g, g), [0, 0, 0], atol=1e-6)
+
+
+def test_report_metrics_by_hand():
+    # 2 episodes of 1 s at 50 Hz: x = 0.1 t (0.1 m/s), roll = 0.1 sin(2 pi t) (max - min 0.2 within
+    # sampling), pitch constant -0.05; episode 1 falls at its 26th step (0.5 s).
+    from quadson_mjx.report import Trial, seed000_stats, seed003_stats
+
+    t = np.arange(1, 51) * CTRL_DT
+    zeros = np.zeros((2, 50))
+    base = {
+        k: zeros.copy() for k in ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
+    }
+    base["x"][:] = 0.1 * t
+    base["vx"][:] = 0.1
+    base["roll"][:] = 0.1 * np.sin(2 * np.pi * t)
+    base["pitch"][:] = -0.05
+    done = np.zeros((2, 50), bool)
+    done[1, 25] = True
+    trial = Trial("x", "pid", "flat", (0.1, 0.0, 0.0), CTRL_DT, base, done)
+    s3 = seed003_stats(trial)
+    assert s3["falls"] == 1 and s3["episodes"] == 2
+    np.testing.assert_allclose(s3["speed"], (0.1, 0.0), atol=1e-12)
+    np.testing.assert_allclose(s3["d_pitch"], (0.0, 0.0), atol=1e-12)
+    d0 = np.ptp(base["roll"][0])  # full cycle
+    d1 = np.ptp(base["roll"][1, :26])  # up to and including the falling step
+    np.testing.assert_allclose(s3["d_roll"], (np.mean([d0, d1]), np.std([d0, d1])))
+    assert abs(d0 - 0.2) < 1e-3
+    s0 = seed000_stats(trial, window_s=3.0)  # the window is longer than the trial: all 50 + 26 steps
+    np.testing.assert_allclose(s0["vx"], (0.1, 0.0), atol=1e-12)
+    np.testing.assert_allclose(s0["pitch"], (-0.05, 0.0), atol=1e-12)
+    assert s0["falls"] == 1
+
+
+def test_report_reads_the_rollout_file(rollout_file, messages):
+    from quadson_mjx.report import load_trial, markdown
+
+    trial = load_trial(rollout_file)
+    assert trial.controller == "pid" and trial.terrain == "flat" and trial.task == "forward"
+    assert trial.base["roll"].shape == (N_ENVS, N_STEPS)
+    rolls = [m["base"]["roll"] for _, m in _topic(messages, "/rollout/step") if m["env"] == 1]
+    np.testing.assert_allclose(trial.base["roll"][1], rolls)
+    table = markdown([trial])
+    assert "| pid | flat | forward |" in table
+
+
+def test_shipped_foxglove_layout_is_the_generated_one():
+    from pathlib import Path
+
+    from quadson_mjx.foxglove_mcap import layout_json
+
+    shipped = Path(__file__).resolve().parents[1] / "eval" / "foxglove_layout.json"
+    assert shipped.read_text() == layout_json()
+    layout = json.loads(shipped.read_text())
+    text = json.dumps(layout)
+    assert '"panelType": "ThreeDee"' in text and '"followTf": "env0/base"' in text
+    assert "/rollout/step{env==0}.base.roll" in text

@@ -1,0 +1,78 @@
+"""Compare controllers from rollout MCAP files: markdown tables (seed 000 and seed 003 metrics) and PNGs.
+
+    python eval/report.py runs/compare/*.mcap --out-dir runs/compare
+
+Writes OUT_DIR/report.md, OUT_DIR/report.json and, when matplotlib is installed (the `report` extra),
+OUT_DIR/<terrain>_<task>.png: base velocity (vx, or yaw rate when turning), roll and pitch over time of
+environment 0 of every controller. Metrics: quadson_mjx.report. Files come from eval/rollout.py
+(`--suite` writes the whole comparison set).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from quadson_mjx import report as R  # noqa: E402
+
+
+def plot(trials, out_dir: Path) -> list[Path]:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib is not installed (pip install -e '.[report]'): PNG plots skipped")
+        return []
+    written = []
+    groups: dict[tuple[str, str], list] = {}
+    for t in trials:
+        groups.setdefault((t.terrain, t.task), []).append(t)
+    for (terrain, task), group in sorted(groups.items()):
+        fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+        speed_key, speed_label = ("wz", "yaw rate [rad/s]") if task == "turn" else ("vx", "vx [m/s]")
+        for t in sorted(group, key=lambda t: t.controller):
+            n = R.first_episode_lengths(t.done)[0]
+            time_s = (1 + R.np.arange(n)) * t.ctrl_dt
+            for ax, key in zip(axes, (speed_key, "roll", "pitch"), strict=True):
+                ax.plot(time_s, t.base[key][0, :n], label=t.controller)
+        target = group[0].command[2] if task == "turn" else group[0].command[0]
+        axes[0].axhline(target, color="k", lw=0.8, ls="--", label="command")
+        for ax, label in zip(axes, (speed_label, "roll [rad]", "pitch [rad]"), strict=True):
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+        axes[0].legend(loc="best", fontsize=8)
+        axes[-1].set_xlabel("time [s] (env 0, until its first fall)")
+        fig.suptitle(f"{terrain} ground, {task}")
+        fig.tight_layout()
+        path = out_dir / f"{terrain}_{task}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("files", nargs="+")
+    p.add_argument("--out-dir", default="runs/compare")
+    p.add_argument("--window-s", type=float, default=3.0, help="seed 000 trial length [s]")
+    args = p.parse_args(argv)
+    out_dir = Path(args.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    trials = [R.load_trial(f) for f in args.files]
+    md = R.markdown(trials, args.window_s)
+    (out_dir / "report.md").write_text(md)
+    (out_dir / "report.json").write_text(R.summary_json(trials, args.window_s))
+    pngs = plot(trials, out_dir)
+    print(md)
+    print(f"wrote {out_dir / 'report.md'}, {out_dir / 'report.json'}" + "".join(f", {p}" for p in pngs))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
