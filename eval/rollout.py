@@ -47,6 +47,7 @@ def parse(argv):
     p.add_argument("--vy", type=float, default=0.0, help="m/s")
     p.add_argument("--yaw-rate", type=float, default=0.0, help="rad/s")
     p.add_argument("--envs", type=int, default=1, help="environments (episodes) in parallel")
+    p.add_argument("--viz-envs", type=int, default=16, help="envs drawn in 3D (all are in /rollout/step)")
     p.add_argument("--seconds", type=float, default=10.0, help="trial length [s]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--segment-steps", type=int, default=250, help="steps per compiled segment (flush)")
@@ -101,6 +102,7 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
         segment_steps=args.segment_steps,
         metadata={**meta, "seed": args.seed, "trial_s": n_steps * env.ctrl_dt},
         overwrite=args.overwrite,
+        viz_envs=args.viz_envs,
     )
     print(
         f"{out}: {controller.name}, {env.config.terrain}, command {tuple(round(c, 3) for c in command)}, "

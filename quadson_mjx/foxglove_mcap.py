@@ -21,7 +21,9 @@ Topics (t = simulation time of the step's end; the static scene at t = 0):
 
 Frames of environment i are prefixed `env{i}/` (`env0/base`, `env0/FL_link2`); the floor is drawn
 in "world". Per-env JSON and Odometry messages carry `env` (JSON) / `body_frame_id`, so a Foxglove
-message path such as `/rollout/step{env==0}.base.vx` picks one environment.
+message path such as `/rollout/step{env==0}.base.vx` picks one environment. Only the first
+`viz_envs` environments are drawn (/tf, /scene, /joint_states, /odom, /imu; `record` defaults to 16,
+about 0.3 ms of host time per env and step); /rollout/step and /log cover every environment.
 
 Quaternions: MuJoCo writes wxyz, Foxglove reads xyzw; converted here. JSON cannot carry NaN: non-finite
 numbers become null. Every file gets its own `foxglove.Context` (channels never leak between files)
@@ -229,12 +231,20 @@ class RolloutWriter:
     """One rollout MCAP file. Use as a context manager or call close()."""
 
     def __init__(
-        self, path: str | Path, model: mujoco.MjModel, n_envs: int, ctrl_dt: float, overwrite: bool = False
+        self,
+        path: str | Path,
+        model: mujoco.MjModel,
+        n_envs: int,
+        ctrl_dt: float,
+        overwrite: bool = False,
+        viz_envs: int | None = None,
     ):
         self.path = Path(path)
         self._ctrl_dt = float(ctrl_dt)
         self.model = model
         self.n_envs = n_envs
+        # envs drawn (/tf, /scene, /joint_states, /odom, /imu); /rollout/step carries all of them
+        self.viz_envs = n_envs if viz_envs is None else max(0, min(viz_envs, n_envs))
         self._ctx = foxglove.Context()
         opts = MCAPWriteOptions(profile=PROFILE)
         self._writer = foxglove.open_mcap(
@@ -271,7 +281,7 @@ class RolloutWriter:
         entities = []
         for g in _drawn_geoms(self.model):
             b = int(self.model.geom_bodyid[g])
-            envs = [0] if b == 0 else range(self.n_envs)
+            envs = [0] if b == 0 else range(self.viz_envs)
             for i in envs:
                 frame = self._frames[i][b]
                 eid = f"geom{g}" if b == 0 else f"env{i}/geom{g}"
@@ -291,7 +301,7 @@ class RolloutWriter:
         ts = _ts(t_ns)
         rel_pos, rel_quat = local_transforms(self.model, traj.xpos[k], traj.xquat[k])  # (B, nbody, .)
         tfs = []
-        for i in range(self.n_envs):
+        for i in range(self.viz_envs):
             frames = self._frames[i]
             for b in range(1, self.model.nbody):
                 tfs.append(
@@ -307,7 +317,7 @@ class RolloutWriter:
 
         qpos, qvel = traj.qpos[k], traj.qvel[k]
         joints = []
-        for i in range(self.n_envs):
+        for i in range(self.viz_envs):
             for j, name, act in zip(self._hinges, self._hinge_names, self._hinge_actuator, strict=True):
                 joints.append(
                     fm.JointState(
@@ -321,26 +331,27 @@ class RolloutWriter:
 
         for i in range(self.n_envs):
             base_frame = self._frames[i][1]
-            self._odom.log(
-                fm.Odometry(
-                    timestamp=ts,
-                    frame_id="world",
-                    body_frame_id=base_frame,
-                    pose=_pose(qpos[i, 0:3], qpos[i, 3:7]),
-                    linear_velocity=_vec(traj.lin_vel[k, i]),
-                    angular_velocity=_vec(traj.ang_vel[k, i]),
-                ),
-                log_time=t_ns,
-            )
-            q = qpos[i, 3:7]  # the IMU sits at the base origin, axes aligned with the base
-            imu = {
-                "env": i,
-                "frame_id": base_frame,
-                "orientation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]},
-                "angular_velocity": dict(zip("xyz", traj.ang_vel[k, i], strict=True)),
-                "linear_acceleration": dict(zip("xyz", traj.imu_acc[k, i], strict=True)),
-            }
-            self._imu.log(_dumps(imu), log_time=t_ns)
+            if i < self.viz_envs:
+                self._odom.log(
+                    fm.Odometry(
+                        timestamp=ts,
+                        frame_id="world",
+                        body_frame_id=base_frame,
+                        pose=_pose(qpos[i, 0:3], qpos[i, 3:7]),
+                        linear_velocity=_vec(traj.lin_vel[k, i]),
+                        angular_velocity=_vec(traj.ang_vel[k, i]),
+                    ),
+                    log_time=t_ns,
+                )
+                q = qpos[i, 3:7]  # the IMU sits at the base origin, axes aligned with the base
+                imu = {
+                    "env": i,
+                    "frame_id": base_frame,
+                    "orientation": {"x": q[1], "y": q[2], "z": q[3], "w": q[0]},
+                    "angular_velocity": dict(zip("xyz", traj.ang_vel[k, i], strict=True)),
+                    "linear_acceleration": dict(zip("xyz", traj.imu_acc[k, i], strict=True)),
+                }
+                self._imu.log(_dumps(imu), log_time=t_ns)
             touch = traj.foot_force[k, i]
             rpy, v, w = traj.rpy[k, i], traj.lin_vel[k, i], traj.ang_vel[k, i]
             step = {
@@ -462,9 +473,11 @@ def record(
     segment_steps: int = 250,
     metadata: dict | None = None,
     overwrite: bool = False,
+    viz_envs: int | None = 16,
 ) -> dict:
     """Runs `quadson_mjx.rollout.run` and writes it to `path`. Flushes after the static scene, at
-    every step where an episode ends and after every segment. -> {"steps", "falls", "nan_resets"}."""
+        every step where an episode ends and after every segment. The first `viz_envs` environments (None:
+    all) are drawn; /rollout/step has every one. -> {"steps", "falls", "nan_resets"}."""
     from quadson_mjx import rollout as qrollout
     from quadson_mjx.config import to_json
     from quadson_mjx.model import model_xml_text
@@ -472,10 +485,11 @@ def record(
 
     ctrl_dt = env.ctrl_dt
     falls = nan_resets = 0
-    with RolloutWriter(path, env.mj_model, n_envs, ctrl_dt, overwrite=overwrite) as w:
+    with RolloutWriter(path, env.mj_model, n_envs, ctrl_dt, overwrite=overwrite, viz_envs=viz_envs) as w:
         info = {
             "controller": controller.name,
             "n_envs": n_envs,
+            "viz_envs": w.viz_envs,
             "n_steps": n_steps,
             "ctrl_dt_s": ctrl_dt,
             "terrain": env.config.terrain,

@@ -340,3 +340,45 @@ def test_shipped_foxglove_layout_is_the_generated_one():
     text = json.dumps(layout)
     assert '"panelType": "ThreeDee"' in text and '"followTf": "env0/base"' in text
     assert "/rollout/step{env==0}.base.roll" in text
+
+
+def test_writer_draws_only_viz_envs_but_logs_every_env(env, tmp_path):
+    from quadson_mjx.foxglove_mcap import RolloutWriter
+
+    m = env.mj_model
+    B, T = 3, 2
+
+    def z(*shape):
+        return np.zeros((T, B, *shape), np.float32)
+
+    qpos = z(m.nq)
+    qpos[..., 3] = 1.0
+    xquat = z(m.nbody, 4)
+    xquat[..., 0] = 1.0
+    traj = R.Trajectory(
+        episode_step=np.ones((T, B), np.int32), obs=z(29), action=z(12), foot_targets=z(4, 3), command=z(3),
+        qpos=qpos, qvel=z(m.nv), xpos=z(m.nbody, 3), xquat=xquat, rpy=z(3), lin_vel=z(3), ang_vel=z(3),
+        imu_acc=z(3), foot_force=z(4), actuator_force=z(m.nu), closure_residual=z(4), reward=z(),
+        reward_terms={"orientation_l2": z()}, done=np.zeros((T, B), bool), nan_reset=np.zeros((T, B), bool),
+    )  # fmt: skip
+    traj.obs[0, 2, 5] = np.nan  # JSON gets null, not NaN
+    path = tmp_path / "viz.mcap"
+    with RolloutWriter(path, m, B, CTRL_DT, viz_envs=1) as w:
+        w.write_scene()
+        for k in range(T):
+            w.write_step(step_time_ns(k, CTRL_DT), traj, k)
+    msgs = mcap_check.read_messages(path)
+    counts = mcap_check.check(path).counts
+    assert (
+        counts["/tf"] == T
+        and counts["/odom"] == T
+        and counts["/imu"] == T
+        and counts["/rollout/step"] == T * B
+    )
+    ((_, scene),) = _topic(msgs, "/scene")
+    assert {e["frame_id"].split("/")[0] for e in scene["entities"]} == {"world", "env0"}
+    tfs = _topic(msgs, "/tf")[0][1]["transforms"]
+    assert len(tfs) == m.nbody - 1 and {t["parent_frame_id"] for t in tfs} >= {"world", "env0/base"}
+    steps = [s for _, s in _topic(msgs, "/rollout/step")]
+    assert [s["env"] for s in steps] == [0, 1, 2, 0, 1, 2]
+    assert steps[2]["observation"][5] is None and steps[2]["observation"][4] == 0.0
