@@ -60,11 +60,12 @@ def _parse_value(text: str, current, key: str):
     return value
 
 
-def apply_overrides(cfg: ConfigDict, overrides: Iterable[str]) -> ConfigDict:
+def apply_overrides(cfg: ConfigDict, overrides: Iterable[str], prefix: str = "") -> ConfigDict:
     """Returns a copy of `cfg` with `key.sub=value` overrides applied (leading dashes allowed).
 
     Raises ValueError naming the key for an unknown key (with the closest known ones), a missing
-    '=', or a value that does not parse as the type of the default.
+    '=', or a value that does not parse as the type of the default. `prefix` (e.g. "env.") is put
+    before key names in messages, to name them as the user typed them.
     """
     out = ml_collections.ConfigDict(cfg.to_dict())
     known = _flat_keys(out)
@@ -75,13 +76,13 @@ def apply_overrides(cfg: ConfigDict, overrides: Iterable[str]) -> ConfigDict:
         key, text = body.split("=", 1)
         if key not in known:
             close = difflib.get_close_matches(key, known, n=3)
-            hint = f"; did you mean {', '.join(close)}?" if close else ""
-            raise ValueError(f"unknown config key '{key}'{hint}")
+            hint = f"; did you mean {', '.join(prefix + c for c in close)}?" if close else ""
+            raise ValueError(f"unknown config key '{prefix}{key}'{hint}")
         *path, leaf = key.split(".")
         node = out
         for p in path:
             node = node[p]
-        node[leaf] = _parse_value(text, node[leaf], key)
+        node[leaf] = _parse_value(text, node[leaf], prefix + key)
     out.lock()
     return out
 

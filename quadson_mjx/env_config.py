@@ -73,7 +73,8 @@ def env_config(
             "ctrl_dt": 0.02,
             "episode_length_s": SEED_EPISODE_S,
             "gait": gait,
-            "swing": "bezier_apex",  # seed Bezier that reaches its step height (see gait.py)
+            "swing": "bezier_seed",  # seed 000 Algorithm 6 (the apex variant tips the open-loop trot)
+            "gait_ramp_s": 0.5,  # blend from the home stance into the gait at the episode start
             "action_scale_m": 0.05,  # seed: offsets bounded to +-5 cm
             "gait_action": False,  # if True, two extra actions scale step length and cycle time
             "gait_action_range": 0.5,  # +-50 % of the gait's step length and cycle frequency

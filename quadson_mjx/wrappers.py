@@ -21,7 +21,7 @@ class ResamplingAutoReset(Wrapper):
         state = self.env.reset(rng)
         state.info["first_pipeline_state"] = state.pipeline_state
         state.info["first_obs"] = state.obs
-        state.info["first_progress"] = state.info["gait_progress"]
+        state.info["first_info"] = {k: state.info[k] for k in self.env.unwrapped.RESTART_INFO}
         state.info["reset_rng"] = jax.vmap(lambda k: jax.random.fold_in(k, 1))(rng)
         return state
 
@@ -42,10 +42,10 @@ class ResamplingAutoReset(Wrapper):
         info["reset_rng"] = keys[:, 1]
         for k, v in fresh.items():
             info[k] = where_done(v, info[k])
-        info["gait_progress"] = where_done(info["first_progress"], info["gait_progress"])
+        for k, v in info["first_info"].items():
+            info[k] = where_done(v, info[k])
         info["last_action"] = jnp.where(done[:, None], 0.0, info["last_action"])
         first = state.info["first_pipeline_state"]
-        info["last_ctrl"] = where_done(first.ctrl, info["last_ctrl"])
         pipeline_state = jax.tree.map(where_done, first, state.pipeline_state)
         obs = where_done(state.info["first_obs"], state.obs)
         if self.env.unwrapped.config.command_tracking:  # the command is the observation's tail

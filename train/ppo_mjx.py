@@ -68,12 +68,16 @@ def main(argv=None) -> int:
         preset = args.preset or ("gpu" if on_gpu else "cpu")
         if not on_gpu and args.preset is None:
             print("No GPU found: running the small 'cpu' preset (minutes). Use a GPU for the real job.")
-        env_cfg = env_config(terrain=args.terrain, **ENV_PRESETS[args.env_preset])
-        env_cfg.gait_action = args.gait_action
-        env_cfg = apply_overrides(env_cfg, [o[len("--env.") :] for o in overrides if o.startswith("--env.")])
-        ppo_cfg = apply_overrides(
-            training.ppo_config(preset), [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
-        )
+        try:
+            env_cfg = env_config(terrain=args.terrain, **ENV_PRESETS[args.env_preset])
+            env_cfg.gait_action = args.gait_action
+            env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
+            ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
+            env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
+            ppo_cfg = apply_overrides(training.ppo_config(preset), ppo_over, prefix="ppo.")
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
         run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
     print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
     t0 = time.monotonic()

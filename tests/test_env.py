@@ -1,0 +1,173 @@
+"""The MJX environment on CPU, few environments: sizes, determinism, rewards by hand, termination,
+truncation, NaN safety, and the gait-only controller standing its first second.
+
+Compiled functions are shared through module fixtures: one jitted reset and step of the seed
+preset, one wrapped (vmapped, auto-reset) step over 2 environments.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from quadson_mjx import rewards
+from quadson_mjx.env import QuadsonEnv, quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.env_config import env_config
+from quadson_mjx.wrappers import wrap_for_training
+
+
+@pytest.fixture(scope="module")
+def env():
+    return QuadsonEnv(env_config())
+
+
+@pytest.fixture(scope="module")
+def fns(env):
+    return jax.jit(env.reset), jax.jit(env.step)
+
+
+@pytest.fixture(scope="module")
+def wrapped(env):
+    w = wrap_for_training(env, episode_length=3)
+    return w, jax.jit(w.reset), jax.jit(w.step)
+
+
+def test_sizes_and_finite_first_step(env, fns):
+    reset, step = fns
+    s = reset(jax.random.PRNGKey(0))
+    assert env.observation_size == 29 and env.action_size == 12  # seed 000 section 8.2
+    assert s.obs.shape == (29,) and s.obs.dtype == jnp.float32
+    s = step(s, jnp.zeros(12))
+    assert s.obs.shape == (29,) and bool(jnp.all(jnp.isfinite(s.obs)))
+    assert float(s.done) == 0.0 and float(s.metrics["nan_reset"]) == 0.0
+    # phase features: sin/cos of 2 pi phase; trot FL/RR at phase 0.025 after one 0.02 s step of a 0.8 s cycle
+    phase = 2 * math.pi * (0.02 / 0.8 + np.array([0.0, 0.5, 0.5, 0.0]))
+    np.testing.assert_allclose(s.obs[21:25], np.sin(phase), atol=1e-5)
+    np.testing.assert_allclose(s.obs[25:29], np.cos(phase), atol=1e-5)
+
+
+def test_deterministic_under_fixed_key(fns):
+    reset, step = fns
+    a = jnp.linspace(-1, 1, 12)
+    s1 = step(reset(jax.random.PRNGKey(3)), a)
+    s2 = step(reset(jax.random.PRNGKey(3)), a)
+    np.testing.assert_array_equal(s1.obs, s2.obs)
+    np.testing.assert_array_equal(s1.pipeline_state.qpos, s2.pipeline_state.qpos)
+
+
+def test_reward_terms_by_hand(env, fns):
+    reset, _ = fns
+    s = reset(jax.random.PRNGKey(0))
+    lin_vel = jnp.array([0.3, 0.1, -0.2])
+    ang_vel = jnp.array([0.0, 0.5, 1.0])
+    rpy = jnp.array([0.1, -0.2, 0.3])
+    info = dict(s.info, last_action=jnp.zeros(12))
+    terms = env._get_reward(s.pipeline_state, jnp.full(12, 0.5), info, rpy, lin_vel, ang_vel)
+    # forward: exp(-0.5 (0.3 - 0.5)^2) = exp(-0.02); lateral: 0.5*0.01 + 0.3*0.25 = 0.08;
+    # vertical: 0.5*0.04 + 0.3*1 = 0.32; orientation: 40*0.01 + 30*0.04 + 5*0.09 = 2.05;
+    # action rate: 12 * 0.25 = 3; height: (z - 0.2)^2 with z the home base height.
+    assert float(terms["forward_velocity_exp"]) == pytest.approx(math.exp(-0.02), rel=1e-6)
+    assert float(terms["lateral_l2"]) == pytest.approx(0.08, rel=1e-6)
+    assert float(terms["vertical_l2"]) == pytest.approx(0.32, rel=1e-6)
+    assert float(terms["orientation_l2"]) == pytest.approx(2.05, rel=1e-6)
+    assert float(terms["action_rate_l2"]) == pytest.approx(3.0, rel=1e-6)
+    z = float(s.pipeline_state.qpos[2])
+    assert float(terms["height_l2"]) == pytest.approx((z - 0.2) ** 2, rel=1e-5)
+    # the seed preset's weights: its four terms as printed, tracking terms off
+    w = env.config.reward.weights
+    assert (w.forward_velocity_exp, w.lateral_l2, w.vertical_l2, w.orientation_l2) == (1.0, -0.8, -0.8, -1.0)
+    assert w.lin_vel_tracking_exp == 0.0 and w.ang_vel_tracking_exp == 0.0
+
+
+def test_step_reward_is_the_weighted_sum_of_logged_terms(fns):
+    reset, step = fns
+    s = step(reset(jax.random.PRNGKey(1)), jnp.zeros(12))
+    total = sum(float(v) for k, v in s.metrics.items() if k.startswith("reward/"))
+    assert float(s.reward) == pytest.approx(total, rel=1e-5, abs=1e-6)
+
+
+def test_quaternion_helpers_by_hand():
+    # 90 deg yaw: q = (cos 45, 0, 0, sin 45); world +x velocity is body -y.
+    q = jnp.array([math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)])
+    np.testing.assert_allclose(quat_to_rpy(q), [0.0, 0.0, math.pi / 2], atol=1e-6)
+    np.testing.assert_allclose(
+        quat_rotate_inverse(q, jnp.array([1.0, 0.0, 0.0])), [0.0, -1.0, 0.0], atol=1e-6
+    )
+    # roll 0.3 then pitch -0.2 (ZYX): q = q_y(-0.2) * q_x(0.3)
+    cr, sr, cp, sp = math.cos(0.15), math.sin(0.15), math.cos(-0.1), math.sin(-0.1)
+    q = jnp.array([cp * cr, cp * sr, sp * cr, -sp * sr])
+    np.testing.assert_allclose(quat_to_rpy(q), [0.3, -0.2, 0.0], atol=1e-6)
+
+
+def test_flipped_robot_terminates(fns):
+    reset, step = fns
+    s = reset(jax.random.PRNGKey(0))
+    d = s.pipeline_state
+    roll = math.radians(60)
+    quat = jnp.array([math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0])
+    s = s.replace(pipeline_state=d.replace(qpos=d.qpos.at[3:7].set(quat)))
+    s = step(s, jnp.zeros(12))
+    assert float(s.done) == 1.0 and float(s.metrics["nan_reset"]) == 0.0
+
+
+def test_nan_state_ends_episode_counted_and_clean(fns, wrapped):
+    reset, step = fns
+    s = reset(jax.random.PRNGKey(0))
+    d = s.pipeline_state
+    s = s.replace(pipeline_state=d.replace(qvel=d.qvel.at[0].set(jnp.nan)))
+    s = step(s, jnp.zeros(12))
+    assert float(s.done) == 1.0 and float(s.metrics["nan_reset"]) == 1.0
+    assert bool(jnp.all(s.obs == 0.0)) and float(s.reward) == 0.0
+    # through the training wrappers the environment comes back from its first state, finite
+    _, wreset, wstep = wrapped
+    ws = wreset(jax.random.split(jax.random.PRNGKey(0), 2))
+    d = ws.pipeline_state
+    ws = ws.replace(pipeline_state=d.replace(qvel=d.qvel.at[1, 0].set(jnp.nan)))
+    ws = wstep(ws, jnp.zeros((2, 12)))
+    np.testing.assert_array_equal(ws.done, [0.0, 1.0])
+    assert bool(jnp.all(jnp.isfinite(ws.pipeline_state.qvel))) and bool(jnp.all(jnp.isfinite(ws.obs)))
+    np.testing.assert_array_equal(ws.info["steps"], [1, 1])
+
+
+def test_time_limit_is_truncation_not_failure(wrapped):
+    _, wreset, wstep = wrapped
+    ws = wreset(jax.random.split(jax.random.PRNGKey(0), 2))
+    for _ in range(3):
+        ws = wstep(ws, jnp.zeros((2, 12)))
+    np.testing.assert_array_equal(ws.done, [1.0, 1.0])
+    np.testing.assert_array_equal(ws.info["truncation"], [1.0, 1.0])  # ended by the limit, not a fall
+    ws = wstep(ws, jnp.zeros((2, 12)))
+    np.testing.assert_array_equal(ws.info["steps"], [1, 1])  # auto-reset started a new episode
+
+
+def test_seed_episode_length(env):
+    assert env.episode_length == round(18.75 / 0.02)  # seed 000: 4500 steps at 240 Hz
+
+
+def test_gait_only_controller_survives_first_second(fns):
+    reset, step = fns
+    s = reset(jax.random.PRNGKey(0))
+    for _ in range(50):  # 1 s at 50 Hz
+        s = step(s, jnp.zeros(12))
+        assert float(s.done) == 0.0
+    assert float(s.pipeline_state.qpos[2]) > 0.15
+    assert float(s.metrics["ik_invalid_legs"]) == 0.0
+
+
+def test_reward_kernels_by_hand():
+    assert float(rewards.tracking_exp(0.25**2, 0.25)) == pytest.approx(math.exp(-0.5))
+    cmd = jnp.array([0.2, -0.1, 0.5])
+    v = jnp.array([0.2, -0.1, 0.0])
+    assert float(rewards.lin_vel_tracking_exp(v, cmd, 0.25)) == pytest.approx(1.0)
+    assert float(rewards.ang_vel_tracking_exp(jnp.array([0.0, 0.0, 0.25]), cmd, 0.25)) == pytest.approx(
+        math.exp(-0.5)
+    )
+
+
+def test_config_errors_are_clear():
+    with pytest.raises(ValueError, match="terrain"):
+        env_config(terrain="moon")
+    with pytest.raises(ValueError, match="unknown gait"):
+        env_config(gait="skip")
