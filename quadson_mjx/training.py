@@ -321,6 +321,11 @@ def train(
             **{f"progress/{k}": v for k, v in extra.items()},
         }
         record["progress/step"] = step
+        length = record.get("eval/avg_episode_length")
+        if length:  # brax sums per-step metrics over an episode; per-step means are what one reads
+            for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset"):
+                if f"eval/episode_{name}" in record:
+                    record[f"eval/mean_{name}"] = record[f"eval/episode_{name}"] / length
         log.log("/train/metrics", _nest(record), time.time_ns())
         last_metrics.clear()
         last_metrics.update(record)

@@ -92,7 +92,7 @@ def main(argv=None) -> int:
         )
         return 130
     print(f"\ndone in {time.monotonic() - t0:.0f} s")
-    for key in ("eval/episode_reward", "eval/episode_forward_speed", "eval/avg_episode_length"):
+    for key in ("eval/episode_reward", "eval/mean_forward_speed", "eval/avg_episode_length"):
         if key in metrics:
             print(f"  {key}: {metrics[key]:.3f}")
     print(
