@@ -105,6 +105,10 @@ class QuadsonEnv(Env):
         return self._mj_model
 
     @property
+    def base_body(self) -> int:
+        return self._base_body
+
+    @property
     def ctrl_dt(self) -> float:
         return self._ctrl_dt
 

@@ -101,6 +101,7 @@ def env_config(
                 "mass_scale": (0.85, 1.15),  # every body's mass
                 "motor_strength": (0.8, 1.2),  # kp and force range of every servo
                 "latency_s": (0.0, 0.02),  # delay before a new motor target reaches the servos
+                "base_com_shift_m": (-0.02, 0.02),  # the base CoM (+5 cm) is an assumption
             },
             "pushes": pushes,
             "push": {"interval_s": (2.0, 4.0), "speed_mps": (0.1, 0.4)},

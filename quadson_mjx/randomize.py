@@ -11,17 +11,18 @@ import jax
 from mujoco import mjx
 
 
-def randomize(model: mjx.Model, rng: jax.Array, ranges) -> tuple[mjx.Model, mjx.Model]:
+def randomize(model: mjx.Model, rng: jax.Array, ranges, base_body: int = 1) -> tuple[mjx.Model, mjx.Model]:
     """model: mjx.Model; rng: (B, 2) keys; ranges: the env config's `randomization` block.
 
     Per environment: sliding friction of every geom set to U(friction), every body mass scaled by one
     factor U(mass_scale) per body (inertia scaled with it), every servo's kp (gain and bias) and force
-    range scaled by one factor U(motor_strength) per motor.
+    range scaled by one factor U(motor_strength) per motor, the base's centre of mass moved along body
+    x by U(base_com_shift_m) (the model's +5 cm CoM is an assumption, models/quadson/README.md).
     """
 
     @jax.vmap
     def one(key):
-        k_f, k_m, k_s = jax.random.split(key, 3)
+        k_f, k_m, k_s, k_c = jax.random.split(key, 4)
         friction = jax.random.uniform(k_f, (), minval=ranges.friction[0], maxval=ranges.friction[1])
         geom_friction = model.geom_friction.at[:, 0].set(friction)
         scale = jax.random.uniform(
@@ -35,9 +36,13 @@ def randomize(model: mjx.Model, rng: jax.Array, ranges) -> tuple[mjx.Model, mjx.
         gain = model.actuator_gainprm.at[:, 0].multiply(strength)
         bias = model.actuator_biasprm.at[:, 1].multiply(strength)
         force = model.actuator_forcerange * strength[:, None]
-        return geom_friction, body_mass, body_inertia, gain, bias, force
+        shift = jax.random.uniform(
+            k_c, (), minval=ranges.base_com_shift_m[0], maxval=ranges.base_com_shift_m[1]
+        )
+        body_ipos = model.body_ipos.at[base_body, 0].add(shift)
+        return geom_friction, body_mass, body_inertia, gain, bias, force, body_ipos
 
-    geom_friction, body_mass, body_inertia, gain, bias, force = one(rng)
+    geom_friction, body_mass, body_inertia, gain, bias, force, body_ipos = one(rng)
     fields = {
         "geom_friction": geom_friction,
         "body_mass": body_mass,
@@ -45,6 +50,7 @@ def randomize(model: mjx.Model, rng: jax.Array, ranges) -> tuple[mjx.Model, mjx.
         "actuator_gainprm": gain,
         "actuator_biasprm": bias,
         "actuator_forcerange": force,
+        "body_ipos": body_ipos,
     }
     batched = model.tree_replace(fields)
     in_axes = jax.tree.map(lambda _: None, model)
@@ -52,10 +58,10 @@ def randomize(model: mjx.Model, rng: jax.Array, ranges) -> tuple[mjx.Model, mjx.
     return batched, in_axes
 
 
-def randomization_fn(ranges):
+def randomization_fn(ranges, base_body: int):
     """The `randomization_fn(model, rng)` that brax PPO expects, bound to the config's ranges."""
 
     def fn(model, rng):
-        return randomize(model, rng, ranges)
+        return randomize(model, rng, ranges, base_body)
 
     return fn

@@ -336,7 +336,7 @@ def train(
         save_checkpoint(run_dir, int(step) + start_step, params)
 
     episode_length = ppo_cfg.episode_length or env.episode_length
-    randomize = randomization_fn(env_cfg.randomization) if env_cfg.randomize else None
+    randomize = randomization_fn(env_cfg.randomization, env.base_body) if env_cfg.randomize else None
     try:
         make_policy, params, _ = ppo.train(
             environment=env,
