@@ -41,7 +41,7 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
     """PPO hyperparameters. Presets: "gpu" (the real job on one GPU), "cpu" (a small run that
     finishes in minutes on a CPU and still learns), "test" (a few iterations, for tests)."""
     base = {
-        "num_timesteps": 100_000_000,
+        "num_timesteps": 80_000_000,
         "num_evals": 11,
         "num_envs": 8192,
         "num_eval_envs": 128,
@@ -374,8 +374,9 @@ def train(
         )
         log.close()
         raise
-    save_checkpoint(run_dir, ppo_cfg.num_timesteps, params)
-    log.log("/train/log", {"event": "finished", "step": ppo_cfg.num_timesteps}, time.time_ns())
+    # brax hands the final parameters to policy_params_fn at its last evaluation: already saved.
+    final_step = progress.last[1] if progress.last else ppo_cfg.num_timesteps
+    log.log("/train/log", {"event": "finished", "step": final_step}, time.time_ns())
     log.close()
     return make_policy, params, last_metrics
 

@@ -65,10 +65,10 @@ def test_reward_terms_by_hand(env, fns):
     rpy = jnp.array([0.1, -0.2, 0.3])
     info = dict(s.info, last_action=jnp.zeros(12))
     terms = env._get_reward(s.pipeline_state, jnp.full(12, 0.5), info, rpy, lin_vel, ang_vel)
-    # forward: exp(-0.5 (0.3 - 0.5)^2) = exp(-0.02); lateral: 0.5*0.01 + 0.3*0.25 = 0.08;
+    # forward (sigma 0.25): exp(-(0.3 - 0.5)^2 / (2 * 0.0625)) = exp(-0.32); lateral: 0.5*0.01 + 0.3*0.25 = 0.08;
     # vertical: 0.5*0.04 + 0.3*1 = 0.32; orientation: 40*0.01 + 30*0.04 + 5*0.09 = 2.05;
     # action rate: 12 * 0.25 = 3; height: (z - 0.2)^2 with z the home base height.
-    assert float(terms["forward_velocity_exp"]) == pytest.approx(math.exp(-0.02), rel=1e-6)
+    assert float(terms["forward_velocity_exp"]) == pytest.approx(math.exp(-0.32), rel=1e-6)
     assert float(terms["lateral_l2"]) == pytest.approx(0.08, rel=1e-6)
     assert float(terms["vertical_l2"]) == pytest.approx(0.32, rel=1e-6)
     assert float(terms["orientation_l2"]) == pytest.approx(2.05, rel=1e-6)
