@@ -219,11 +219,16 @@ class QuadsonEnv(Env):
         )
 
     # --- pieces of step ---------------------------------------------------------------------------
-    def gait_targets(self, info):
-        """The gait's own foot targets for the coming control step, before any action: (4, 3)
-        shoulder frames [m]. For controllers that act on the gait (e.g. the PID stabilizer)."""
-        params = self._gait
-        return gait.foot_targets(info["gait_progress"] * params.cycle_s, info["command"], params)
+    def gait_targets(self, info, params=None, command=None):
+        """The gait's foot targets for the coming control step, before any action: (4, 3) in the
+        shoulder frames [m], blended from the home stance over the first gait_ramp_s (smoothstep):
+        the gait's first targets are up to 6 cm from the home feet, a jump the servos would slam.
+        Controllers that act on the gait (e.g. the PID stabilizer) start from these."""
+        params = self._gait if params is None else params
+        command = info["command"] if command is None else command
+        targets = gait.foot_targets(info["gait_progress"] * params.cycle_s, command, params)
+        s = jnp.clip((info["episode_time"] + self._ctrl_dt) / self._config.gait_ramp_s, 0.0, 1.0)
+        return self._home_feet + (s * s * (3.0 - 2.0 * s)) * (targets - self._home_feet)
 
     def _motor_targets(self, info, action):
         """Gait + offsets -> (ctrl (nu,), number of legs whose target was clamped, cycle time [s])."""
@@ -239,12 +244,7 @@ class QuadsonEnv(Env):
             command = info["command"] * length_scale * freq_scale
         else:
             command = info["command"]
-        t = info["gait_progress"] * params.cycle_s
-        targets = gait.foot_targets(t, command, params)  # (4, 3) shoulder frames
-        # Blend from the home stance into the gait over the first gait_ramp_s (smoothstep): the
-        # gait's first targets are up to 6 cm from the home feet, a jump the servos would slam.
-        s = jnp.clip((info["episode_time"] + self._ctrl_dt) / cfg.gait_ramp_s, 0.0, 1.0)
-        targets = self._home_feet + (s * s * (3.0 - 2.0 * s)) * (targets - self._home_feet)
+        targets = self.gait_targets(info, params, command)  # (4, 3) shoulder frames
         targets = targets + cfg.action_scale_m * action[:12].reshape(4, 3)
         angles, valid = gait.motor_targets(targets)  # (4, 3), (4,)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles.reshape(12))

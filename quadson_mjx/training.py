@@ -374,6 +374,11 @@ def train(
         )
         log.close()
         raise
+    except BaseException as e:  # any other failure: the log still gets its summary and says why
+        event = f"failed: {type(e).__name__}: {e}"[:500]
+        log.log("/train/log", {"event": event, "step": start_step}, time.time_ns())
+        log.close()
+        raise
     # brax hands the final parameters to policy_params_fn at its last evaluation: already saved.
     final_step = progress.last[1] if progress.last else ppo_cfg.num_timesteps
     log.log("/train/log", {"event": "finished", "step": final_step}, time.time_ns())
