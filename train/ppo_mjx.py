@@ -48,6 +48,11 @@ def parse(argv):
     p.add_argument(
         "--resume", metavar="RUN_DIR", default=None, help="continue a run from its newest checkpoint"
     )
+    p.add_argument(
+        "--coordinator", default=None, help="several hosts: HOST:PORT of process 0 (jax.distributed)"
+    )
+    p.add_argument("--num-processes", type=int, default=1, help="several hosts: number of processes")
+    p.add_argument("--process-id", type=int, default=0, help="several hosts: this process's index")
     args, rest = p.parse_known_args(argv)
     bad = [r for r in rest if not (r.startswith("--env.") or r.startswith("--ppo."))]
     if bad:
@@ -57,6 +62,8 @@ def parse(argv):
 
 def main(argv=None) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
+    if args.coordinator:  # one process per host; brax trains on every process's local devices
+        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
     if args.resume:
         if overrides:
             print("--resume takes the run's saved configs; overrides are not allowed", file=sys.stderr)
