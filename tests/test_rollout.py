@@ -243,7 +243,12 @@ def test_pid_controller_limiter_case_by_hand(env):
     # scaled by 0.75 -> (0.3, -0.15) (robots.md).
     ctrl = R.pid_stabilizer(env)
     obs = jnp.zeros(env.observation_size).at[:2].set(jnp.array([-0.4, 0.2]) / 0.75)
-    info = {"gait_progress": jnp.asarray(0.3), "command": jnp.array([0.3, 0.0, 0.0])}
+    # past the 0.5 s start ramp, so the gait targets are the gait's own
+    info = {
+        "gait_progress": jnp.asarray(0.3),
+        "command": jnp.array([0.3, 0.0, 0.0]),
+        "episode_time": jnp.asarray(1.0),
+    }
 
     @jax.jit
     def act(carry, obs, info):  # as the rollout runs it: jitted
