@@ -196,6 +196,7 @@ class QuadsonEnv(Env):
         info["last_action"] = action
         info["last_ctrl"] = ctrl
         info["foot_targets"] = targets
+        info["rng"] = jax.random.split(info["rng"])[0]  # fresh sensor noise every step
         obs = self._get_obs(data, info)
         obs = jnp.where(sane, obs, 0.0)
         reward = jnp.where(sane, reward, 0.0)

@@ -171,3 +171,17 @@ def test_config_errors_are_clear():
         env_config(terrain="moon")
     with pytest.raises(ValueError, match="unknown gait"):
         env_config(gait="skip")
+
+
+def test_sensor_noise_is_fresh_every_step():
+    # Regression: the noise key was only advanced by pushes, so with randomize on and pushes off
+    # every step carried the same noise (a constant bias, not noise). Noise = noisy observation -
+    # the noiseless observation of the same state (an env without randomization).
+    env = QuadsonEnv(env_config(randomize=True))
+    clean_env = QuadsonEnv(env_config())
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    s1 = step(reset(jax.random.PRNGKey(0)), jnp.zeros(12))
+    s2 = step(s1, jnp.zeros(12))
+    noise = [np.asarray(s.obs - clean_env._get_obs(s.pipeline_state, s.info))[:21] for s in (s1, s2)]
+    assert np.std(noise[0]) > 0.0 and np.std(noise[1]) > 0.0
+    assert not np.allclose(noise[0], noise[1])
