@@ -68,7 +68,6 @@ class QuadsonEnv(Env):
 
         ids = qmodel.model_ids(self._mj_model)
         self._motor_qpos = jnp.asarray(ids.motor_qposadr)  # (12,) LEGS x MOTORS order
-        self._motor_qvel = jnp.asarray(ids.motor_dofadr)
         self._actuator_of_motor = jnp.asarray(ids.motor_actuator)  # (12,) ctrl index of each motor
         self._base_body = ids.base_body
         self._home_qpos = jnp.asarray(qmodel.home_qpos(self._mj_model))
@@ -81,7 +80,6 @@ class QuadsonEnv(Env):
         self._root_v = ids.root_dofadr
         if (self._root_q, self._root_v) != (0, 0):
             raise ValueError("the base's free joint must come first in qpos/qvel")
-        self._episode_latency_max = int(round(cfg.randomization.latency_s[1] / sim_dt))
 
     # --- brax Env interface -------------------------------------------------------------------
     @property
