@@ -58,7 +58,6 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
         "max_grad_norm": 1.0,
         "reward_scaling": 1.0,
         "normalize_observations": True,
-        "init_noise_std": 1.0,  # the policy's initial action std (tanh-normal, normalised actions)
         "policy_hidden": (128, 128, 128, 128),
         "value_hidden": (256, 256, 256, 256, 256),
         "seed": 0,
@@ -112,7 +111,6 @@ def make_networks(obs_size: int, action_size: int, ppo_cfg):
         preprocess_observations_fn=normalize,
         policy_hidden_layer_sizes=tuple(ppo_cfg.policy_hidden),
         value_hidden_layer_sizes=tuple(ppo_cfg.value_hidden),
-        init_noise_std=ppo_cfg.get("init_noise_std", 1.0),
     )
 
 
