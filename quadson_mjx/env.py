@@ -195,7 +195,7 @@ class QuadsonEnv(Env):
         info["last_ctrl"] = ctrl
         info["foot_targets"] = targets
         info["rng"] = jax.random.split(info["rng"])[0]  # fresh sensor noise every step
-        obs = self._get_obs(data, info)
+        obs = self._get_obs(data, info, (rpy, lin_vel, ang_vel))
         obs = jnp.where(sane, obs, 0.0)
         reward = jnp.where(sane, reward, 0.0)
 
@@ -273,11 +273,12 @@ class QuadsonEnv(Env):
         ang_vel = data.qvel[3:6]  # free joint: angular velocity already in the body frame
         return rpy, lin_vel, ang_vel
 
-    def _get_obs(self, data, info):
+    def _get_obs(self, data, info, base_state=None):
         """29 values (seed 000): rpy, body linear and angular velocity, 12 motor positions, sin/cos of
-        each leg's phase in radians (the robot's code forgot the 2 pi); + command when tracking."""
+        each leg's phase in radians (the robot's code forgot the 2 pi); + command when tracking.
+        base_state: (rpy, lin_vel, ang_vel) when the caller has computed it already."""
         cfg = self._config
-        rpy, lin_vel, ang_vel = self._base_state(data)
+        rpy, lin_vel, ang_vel = self._base_state(data) if base_state is None else base_state
         motor_pos = data.qpos[self._motor_qpos]
         if cfg.randomize:
             k = jax.random.split(jax.random.fold_in(info["rng"], 1), 4)
