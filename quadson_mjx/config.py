@@ -28,6 +28,10 @@ def _flat_keys(cfg: Mapping, prefix: str = "") -> list[str]:
     return keys
 
 
+# Keys whose value is a list of layer sizes: any depth may replace the default's.
+LAYER_SIZE_KEYS = ("policy_hidden", "value_hidden")
+
+
 def _parse_value(text: str, current, key: str):
     """Parses `text` into the type of the current value; raises naming `key` on a mismatch."""
     if isinstance(current, str):
@@ -49,7 +53,13 @@ def _parse_value(text: str, current, key: str):
         return value
     if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
+    if isinstance(value, int) and key.rsplit(".", 1)[-1] in LAYER_SIZE_KEYS:
+        value = (value,)  # one hidden layer, written without a trailing comma
     if isinstance(current, tuple | list) and isinstance(value, tuple | list):
+        if key.rsplit(".", 1)[-1] in LAYER_SIZE_KEYS:
+            if not value or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value):
+                raise ValueError(f"config key '{key}' takes layer sizes (positive integers), got {text!r}")
+            return type(current)(value)
         if len(value) != len(current):
             raise ValueError(f"config key '{key}' takes {len(current)} values, got {len(value)}")
         return type(current)(

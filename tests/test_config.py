@@ -83,3 +83,13 @@ def test_device_put_replicated_shim_layout():
     assert out["b"].shape == (len(devices),)
     compat.patch_brax()
     assert callable(jax.device_put_replicated)
+
+
+def test_network_sizes_take_any_depth():
+    from quadson_mjx.training import ppo_config
+
+    cfg = apply_overrides(ppo_config("gpu"), ["policy_hidden=(256, 128)", "value_hidden=64"])
+    assert cfg.policy_hidden == (256, 128) and cfg.value_hidden == (64,)
+    for bad in ("policy_hidden=()", "policy_hidden=(64, 0)", "policy_hidden=(64.5,)"):
+        with pytest.raises(ValueError, match="policy_hidden"):
+            apply_overrides(ppo_config("gpu"), [bad])
