@@ -18,6 +18,7 @@ and restart from zero.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -60,12 +61,32 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
         "normalize_observations": True,
         "policy_hidden": (128, 128, 128, 128),
         "value_hidden": (256, 256, 256, 256, 256),
+        # "tanh_normal": brax's default (tanh-squashed Gaussian, mean and scale from the MLP with
+        # random weights, so the untrained policy already pushes every foot off the gait).
+        # "gait_normal": a Gaussian whose mean layer starts at zero, so the untrained policy is the
+        # gait itself, with a learned state-independent std starting at init_noise_std (used only
+        # here). Either way the env clips actions to [-1, 1].
+        "policy_distribution": "tanh_normal",
+        "init_noise_std": 0.3,
+        # Local GPUs to train on (0: all). Several: brax splits the envs and the batch evenly and
+        # all-reduces gradients. "sharded_jit" compiles brax's per-device functions as one jit over
+        # the devices (compat.pmap_as_sharded_jit; jax's own pmap crashes XLA on jax 0.11.2 with
+        # two GPUs); "pmap" keeps jax's pmap (and is always used across several hosts).
+        "max_devices": 0,
+        "multi_device": "sharded_jit",
+        # Evaluations (the logged eval/* metrics) run the policy's mean action, as deployment does;
+        # False samples from the policy as in training (brax's default).
+        "deterministic_eval": True,
         "seed": 0,
     }
     presets = {
         "gpu": {},
         "cpu": {
-            # Finishes in about 3.5 minutes on 2 cores but does not learn yet (README: Results).
+            # About 4 minutes on 2 cores. Starts from the gait (gait_normal, small exploration
+            # noise): random initial offsets make the robot fall, and learning not to fall from
+            # there takes more samples than a CPU gives in minutes (README: Results).
+            "policy_distribution": "gait_normal",
+            "init_noise_std": 0.1,
             "num_timesteps": 600_000,
             "num_evals": 6,
             "num_envs": 128,
@@ -97,13 +118,66 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
     return cfg
 
 
+def check_ppo_config(cfg) -> None:
+    """Raises ValueError naming the key for a value brax would reject late or misread silently."""
+    if cfg.policy_distribution not in POLICY_DISTRIBUTIONS:
+        raise ValueError(
+            f"ppo.policy_distribution is {cfg.policy_distribution!r}; choose from {list(POLICY_DISTRIBUTIONS)}"
+        )
+    if cfg.multi_device not in ("sharded_jit", "pmap"):
+        raise ValueError(f"ppo.multi_device is {cfg.multi_device!r}; choose 'sharded_jit' or 'pmap'")
+    for key in (
+        "num_timesteps",
+        "num_envs",
+        "num_eval_envs",
+        "unroll_length",
+        "batch_size",
+        "num_minibatches",
+        "num_updates_per_batch",
+        "num_evals",
+    ):
+        if cfg[key] < 1:
+            raise ValueError(f"ppo.{key} must be >= 1, got {cfg[key]}")
+    if cfg.max_devices < 0:
+        raise ValueError(f"ppo.max_devices must be >= 0 (0: all), got {cfg.max_devices}")
+    devices = jax.local_device_count()
+    devices = min(devices, cfg.max_devices) if cfg.max_devices else devices
+    devices *= jax.process_count()
+    for key in ("num_envs", "batch_size"):
+        if cfg[key] % devices:
+            raise ValueError(f"ppo.{key}={cfg[key]} does not split evenly over {devices} devices")
+    if (cfg.batch_size * cfg.num_minibatches) % cfg.num_envs:
+        raise ValueError(
+            f"ppo.batch_size * ppo.num_minibatches = {cfg.batch_size * cfg.num_minibatches} must be a multiple "
+            f"of ppo.num_envs = {cfg.num_envs} (brax collects whole unrolls of every env)"
+        )
+    if cfg.policy_distribution == "gait_normal" and not cfg.init_noise_std > 0:
+        raise ValueError(f"ppo.init_noise_std must be > 0, got {cfg.init_noise_std}")
+
+
 # --- networks and checkpoints -----------------------------------------------------------------------
 
 
+POLICY_DISTRIBUTIONS = ("tanh_normal", "gait_normal")
+
+
 def make_networks(obs_size: int, action_size: int, ppo_cfg):
+    """brax's PPO networks for `ppo_cfg.policy_distribution` (see ppo_config)."""
     from brax.training.acme import running_statistics
     from brax.training.agents.ppo import networks as ppo_networks
 
+    kind = ppo_cfg.policy_distribution
+    if kind not in POLICY_DISTRIBUTIONS:
+        raise ValueError(f"ppo.policy_distribution is {kind!r}; choose from {list(POLICY_DISTRIBUTIONS)}")
+    extra = {}
+    if kind == "gait_normal":
+        extra = {
+            "distribution_type": "normal",
+            "noise_std_type": "log",  # std = exp(param): stays positive whatever the update
+            "init_noise_std": float(ppo_cfg.init_noise_std),
+            "mean_kernel_init_fn": jax.nn.initializers.constant,
+            "mean_kernel_init_kwargs": {"value": 0.0},
+        }
     normalize = running_statistics.normalize if ppo_cfg.normalize_observations else (lambda x, y: x)
     return ppo_networks.make_ppo_networks(
         obs_size,
@@ -111,6 +185,7 @@ def make_networks(obs_size: int, action_size: int, ppo_cfg):
         preprocess_observations_fn=normalize,
         policy_hidden_layer_sizes=tuple(ppo_cfg.policy_hidden),
         value_hidden_layer_sizes=tuple(ppo_cfg.value_hidden),
+        **extra,
     )
 
 
@@ -152,12 +227,30 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, int]:
     return path, int(path.stem.split("_")[1])
 
 
+# PPO keys added after runs were already published, with the value that reproduces what those runs
+# did: a run directory saved before a key existed is read with it (load_run_config).
+PPO_KEYS_ADDED = {
+    "policy_distribution": "tanh_normal",
+    "init_noise_std": 0.3,
+    "max_devices": 0,
+    "multi_device": "sharded_jit",
+    "deterministic_eval": False,
+}
+
+
 def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collections.ConfigDict]:
+    """-> (env_cfg, ppo_cfg) of a run directory, with keys added since the run filled in
+    (PPO_KEYS_ADDED); a key this version does not know is an error naming it."""
     path = Path(run_dir) / "config.json"
     if not path.exists():
         raise FileNotFoundError(f"{run_dir} is not a run directory: {path} does not exist")
     data = json.loads(path.read_text())
-    return from_json(json.dumps(data["env"])), from_json(json.dumps(data["ppo"]))
+    ppo = {**PPO_KEYS_ADDED, **data["ppo"]}
+    known = set(ppo_config(ppo.get("preset", "gpu")).keys())
+    unknown = sorted(set(ppo) - known)
+    if unknown:
+        raise ValueError(f"{path}: unknown ppo config keys {unknown} (written by another version?)")
+    return from_json(json.dumps(data["env"])), from_json(json.dumps(ppo))
 
 
 def load_checkpoint(path: Path, obs_size: int, action_size: int, ppo_cfg):
@@ -268,6 +361,7 @@ def train(
     from quadson_mjx.wrappers import wrap_for_training
 
     compat.patch_brax()
+    check_ppo_config(ppo_cfg)
     run_dir = Path(run_dir)
     start_step = 0
     restore = None
@@ -338,35 +432,45 @@ def train(
 
     episode_length = ppo_cfg.episode_length or env.episode_length
     randomize = randomization_fn(env_cfg.randomization, env.base_body) if env_cfg.randomize else None
+    devices = jax.local_device_count()
+    devices = min(devices, ppo_cfg.max_devices) if ppo_cfg.max_devices else devices
+    multi_device = (
+        compat.brax_multi_device(devices)
+        if ppo_cfg.multi_device == "sharded_jit"
+        else contextlib.nullcontext()
+    )
     try:
-        make_policy, params, _ = ppo.train(
-            environment=env,
-            eval_env=eval_env,
-            wrap_env_fn=wrap_for_training,
-            randomization_fn=randomize,
-            num_timesteps=remaining,
-            num_evals=ppo_cfg.num_evals,
-            num_envs=ppo_cfg.num_envs,
-            num_eval_envs=ppo_cfg.num_eval_envs,
-            episode_length=episode_length,
-            unroll_length=ppo_cfg.unroll_length,
-            batch_size=ppo_cfg.batch_size,
-            num_minibatches=ppo_cfg.num_minibatches,
-            num_updates_per_batch=ppo_cfg.num_updates_per_batch,
-            learning_rate=ppo_cfg.learning_rate,
-            entropy_cost=ppo_cfg.entropy_cost,
-            discounting=ppo_cfg.discounting,
-            gae_lambda=ppo_cfg.gae_lambda,
-            clipping_epsilon=ppo_cfg.clipping_epsilon,
-            max_grad_norm=ppo_cfg.max_grad_norm,
-            reward_scaling=ppo_cfg.reward_scaling,
-            normalize_observations=ppo_cfg.normalize_observations,
-            network_factory=lambda obs, act, preprocess_observations_fn: make_networks(obs, act, ppo_cfg),
-            seed=ppo_cfg.seed + start_step,
-            progress_fn=progress_fn,
-            policy_params_fn=policy_params_fn,
-            restore_params=restore,
-        )
+        with multi_device:
+            make_policy, params, _ = ppo.train(
+                environment=env,
+                eval_env=eval_env,
+                wrap_env_fn=wrap_for_training,
+                randomization_fn=randomize,
+                num_timesteps=remaining,
+                num_evals=ppo_cfg.num_evals,
+                num_envs=ppo_cfg.num_envs,
+                num_eval_envs=ppo_cfg.num_eval_envs,
+                episode_length=episode_length,
+                unroll_length=ppo_cfg.unroll_length,
+                batch_size=ppo_cfg.batch_size,
+                num_minibatches=ppo_cfg.num_minibatches,
+                num_updates_per_batch=ppo_cfg.num_updates_per_batch,
+                learning_rate=ppo_cfg.learning_rate,
+                entropy_cost=ppo_cfg.entropy_cost,
+                discounting=ppo_cfg.discounting,
+                gae_lambda=ppo_cfg.gae_lambda,
+                clipping_epsilon=ppo_cfg.clipping_epsilon,
+                max_grad_norm=ppo_cfg.max_grad_norm,
+                reward_scaling=ppo_cfg.reward_scaling,
+                normalize_observations=ppo_cfg.normalize_observations,
+                network_factory=lambda obs, act, preprocess_observations_fn: make_networks(obs, act, ppo_cfg),
+                seed=ppo_cfg.seed + start_step,
+                progress_fn=progress_fn,
+                policy_params_fn=policy_params_fn,
+                restore_params=restore,
+                max_devices_per_host=ppo_cfg.max_devices or None,
+                deterministic_eval=ppo_cfg.deterministic_eval,
+            )
     except KeyboardInterrupt:
         log.log(
             "/train/log",

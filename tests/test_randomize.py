@@ -22,10 +22,7 @@ def test_randomized_fields_ranges_and_axes():
     assert np.all(f == f[:, :1])  # one friction per environment for every geom
     nonzero = np.asarray(env.sys.body_mass) > 0  # the world body has no mass
     scale = np.asarray(model.body_mass)[:, nonzero] / np.asarray(env.sys.body_mass)[None, nonzero]
-    assert (
-        scale.min() >= r.mass_scale[0] - 1e-6
-        and scale.max() <= r.mass_scale[1] + 1e-6
-    )
+    assert scale.min() >= r.mass_scale[0] - 1e-6 and scale.max() <= r.mass_scale[1] + 1e-6
     kp = np.asarray(model.actuator_gainprm[:, :, 0]) / np.asarray(env.sys.actuator_gainprm[:, 0])[None]
     bias = np.asarray(model.actuator_biasprm[:, :, 1]) / np.asarray(env.sys.actuator_biasprm[:, 1])[None]
     np.testing.assert_allclose(kp, bias, rtol=1e-6)  # a position servo stays a servo: kp and -kp scaled alike

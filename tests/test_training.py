@@ -141,3 +141,60 @@ def test_script_rejects_a_bad_override_key_naming_it(tmp_path):
 def test_unknown_preset_is_an_error():
     with pytest.raises(ValueError, match="unknown ppo preset"):
         training.ppo_config("huge")
+
+
+def test_gait_normal_policy_starts_as_the_gait():
+    # The untrained gait_normal policy's mean action is exactly zero (the gait unchanged) for any
+    # observation, and its exploration noise is init_noise_std; brax's tanh_normal is not zero.
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    obs = jax.random.normal(jax.random.PRNGKey(1), (16, 29)) * 3.0
+    for kind, zero in (("gait_normal", True), ("tanh_normal", False)):
+        cfg = apply_overrides(
+            training.ppo_config("test"), [f"policy_distribution={kind}", "init_noise_std=0.2"]
+        )
+        nets = training.make_networks(29, 12, cfg)
+        params = training.params_template(29, 12, cfg)
+        mean = ppo_networks.make_inference_fn(nets)(params, deterministic=True)(obs, None)[0]
+        assert bool(jnp.all(mean == 0.0)) is zero
+        if zero:
+            loc, scale = nets.policy_network.apply(params[0], params[1], obs)
+            np.testing.assert_allclose(np.asarray(scale), 0.2, rtol=1e-6)
+            sample = ppo_networks.make_inference_fn(nets)(params, deterministic=False)(
+                jnp.zeros((4096, 29)), jax.random.PRNGKey(2)
+            )[0]
+            assert float(jnp.std(sample)) == pytest.approx(0.2, rel=0.05)  # no tanh squashing
+
+
+def test_ppo_config_errors_name_the_key():
+    base = training.ppo_config("test")
+    for override, key in (
+        ("policy_distribution=beta", "ppo.policy_distribution"),
+        ("multi_device=nccl", "ppo.multi_device"),
+        ("num_envs=0", "ppo.num_envs"),
+        ("max_devices=-1", "ppo.max_devices"),
+        ("batch_size=3", "ppo.batch_size * ppo.num_minibatches"),
+    ):
+        with pytest.raises(ValueError, match=key.replace("*", r"\*")):
+            training.check_ppo_config(apply_overrides(base, [override]))
+    cfg = apply_overrides(base, ["policy_distribution=gait_normal", "init_noise_std=0.0"])
+    with pytest.raises(ValueError, match="init_noise_std"):
+        training.check_ppo_config(cfg)
+    for preset in ("gpu", "cpu", "test"):
+        training.check_ppo_config(training.ppo_config(preset))
+
+
+def test_run_configs_written_before_new_keys_still_load(tmp_path):
+    # The published run (results/policy_h200_seed) predates policy_distribution and the device
+    # keys: it loads with the values that reproduce what it did, and its checkpoint restores.
+    published = ROOT / "results" / "policy_h200_seed"
+    saved = json.loads((published / "config.json").read_text())["ppo"]
+    assert "policy_distribution" not in saved
+    _, ppo_cfg = training.load_run_config(published)
+    assert ppo_cfg.policy_distribution == "tanh_normal" and ppo_cfg.deterministic_eval is False
+    training.load_checkpoint(training.latest_checkpoint(published)[0], 29, 12, ppo_cfg)
+    data = json.loads((published / "config.json").read_text())
+    data["ppo"]["policy_hiden"] = [8]
+    (tmp_path / "config.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="policy_hiden"):
+        training.load_run_config(tmp_path)
