@@ -440,7 +440,7 @@ def train(
         else contextlib.nullcontext()
     )
     try:
-        with multi_device:
+        with multi_device, compat.brax_evaluator_compiles_once():
             make_policy, params, _ = ppo.train(
                 environment=env,
                 eval_env=eval_env,

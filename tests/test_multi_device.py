@@ -36,7 +36,7 @@ def _compiles(fn, *args, calls=3):
                 out = (fn(*out),)
     finally:
         logger.removeHandler(handler)
-    return sum("Compiling" in r and "_step" in r for r in records), out[0]
+    return sum(r.startswith("Compiling") for r in records), out[0]
 
 
 def test_replicated_params_enter_pmap_without_a_second_compilation():
@@ -78,7 +78,8 @@ def test_two_devices_sharded_jit_matches_pmap_and_trains(tmp_path):
     # the env batch stays on its device: gradients and statistics are all-reduced, nothing gathered
     epoch = result["collectives"]["training_epoch"]
     assert epoch["all-reduce"] >= 1 and epoch["all-gather"] == 0 and epoch["all-to-all"] == 0
-    assert result["training_epoch_compiles"] == 1
+    assert result["training_epoch_compiles"] == 1  # 2 before the placement fix (compat)
+    assert result["evaluation_compiles"] == 1  # 2 before compat.brax_evaluator_compiles_once
     assert result["finished"] and result["checkpoint_step"] > 0
     assert all(np.isfinite(v) for v in result["eval"].values())
 

@@ -78,6 +78,7 @@ def main(run_dir: str) -> None:
     with jax.log_compiles(True):
         _, _, metrics = training.train(env, ppo, run_dir)
     out["training_epoch_compiles"] = sum(m.startswith("Compiling jit(training_epoch)") for m in messages)
+    out["evaluation_compiles"] = sum(m.startswith("Compiling jit(generate_eval_unroll)") for m in messages)
     out["finished"] = metrics["progress/step"] >= 256
     out["checkpoint_step"] = training.latest_checkpoint(run_dir)[1]
     out["eval"] = {k: metrics[k] for k in ("eval/episode_reward", "eval/avg_episode_length")}
