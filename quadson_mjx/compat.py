@@ -1,5 +1,9 @@
-"""Compatibility shims for the pinned toolchain. Each one names the upstream issue it works around,
-so it can be deleted once the upstream fix is released.
+"""Compatibility shims for the pinned toolchain (brax 0.14.2 on jax >= 0.10). Each one says what it
+works around, measured, and the upstream issue where one exists, so it can be deleted once fixed:
+
+* `patch_brax`: `jax.device_put_replicated`, removed from jax, still called by brax PPO.
+* `brax_multi_device`: brax's `jax.pmap` as one sharded `jit` (jax's pmap crashes XLA on two GPUs).
+* `brax_evaluator_compiles_once`: brax's evaluator compiled twice per run.
 """
 
 from __future__ import annotations
@@ -68,6 +72,7 @@ def pmap_as_sharded_jit(fun, axis_name=None, *, in_axes=0, out_axes=0, donate_ar
     across hosts brax needs jax's own pmap (collectives that span processes).
     """
     unsupported = {k: v for k, v in kwargs.items() if v not in (None, (), 0)}
+    unsupported.update({k: v for k, v in (("in_axes", in_axes), ("out_axes", out_axes)) if v != 0})
     if unsupported:
         raise NotImplementedError(f"pmap_as_sharded_jit does not support {sorted(unsupported)}")
     mapped = jax.vmap(fun, in_axes=in_axes, out_axes=out_axes, axis_name=axis_name)

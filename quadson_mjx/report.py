@@ -67,9 +67,12 @@ def load_trial(path: str | Path) -> Trial:
     done = np.array([[bool(s["done"]) for s in steps[e][:n]] for e in envs])
     first = steps[envs[0]][0]["command"]
     command = (float(first["vx"]), float(first["vy"]), float(first["yaw_rate"]))
+    controller = rollout.get("controller", "?")
+    if controller == "policy" and rollout.get("run_dir"):  # several policies: name each by its run
+        controller = f"policy ({Path(rollout['run_dir']).name})"
     return Trial(
         path=str(path),
-        controller=rollout.get("controller", "?"),
+        controller=controller,
         terrain=rollout.get("terrain", "?"),
         command=command,
         ctrl_dt=float(rollout.get("ctrl_dt_s", 0.02)),

@@ -14,6 +14,9 @@ behind as its newest. `--resume RUN_DIR` restores the newest checkpoint's parame
 normaliser, trains the remaining steps and keeps appending to the same train.mcap (messages of a
 killed run's file are recovered first). The optimiser's moments are not in brax's restorable state
 and restart from zero.
+
+Several local GPUs: brax splits environments and batches over them; `compat.brax_multi_device`
+compiles brax's per-device functions as one sharded jit (ppo.multi_device, ppo.max_devices).
 """
 
 from __future__ import annotations
@@ -361,14 +364,14 @@ def train(
     from quadson_mjx.wrappers import wrap_for_training
 
     compat.patch_brax()
-    check_ppo_config(ppo_cfg)
     run_dir = Path(run_dir)
     start_step = 0
     restore = None
     if resume:
         env_cfg, ppo_cfg = load_run_config(run_dir)
         ckpt, start_step = latest_checkpoint(run_dir)
-    else:
+    check_ppo_config(ppo_cfg)
+    if not resume:
         if run_dir.exists() and any(run_dir.iterdir()):
             raise FileExistsError(f"run directory {run_dir} is not empty; use --resume to continue it")
         run_dir.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ import pytest
 from mcap.reader import make_reader
 
 from quadson_mjx import training
-from quadson_mjx.config import apply_overrides
+from quadson_mjx.config import apply_overrides, to_json
 from quadson_mjx.env_config import env_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -185,16 +185,22 @@ def test_ppo_config_errors_name_the_key():
 
 
 def test_run_configs_written_before_new_keys_still_load(tmp_path):
-    # The published run (results/policy_h200_seed) predates policy_distribution and the device
-    # keys: it loads with the values that reproduce what it did, and its checkpoint restores.
-    published = ROOT / "results" / "policy_h200_seed"
-    saved = json.loads((published / "config.json").read_text())["ppo"]
-    assert "policy_distribution" not in saved
-    _, ppo_cfg = training.load_run_config(published)
+    # tests/data/legacy_run/config.json is the config of the policy this project published first
+    # (before policy_distribution, the device keys and deterministic_eval existed). It loads with
+    # the values that reproduce that run, its networks restore a checkpoint, and it exports.
+    legacy = ROOT / "tests" / "data" / "legacy_run" / "config.json"
+    data = json.loads(legacy.read_text())
+    assert "policy_distribution" not in data["ppo"]
+    run = tmp_path / "legacy"
+    run.mkdir()
+    (run / "config.json").write_text(legacy.read_text())
+    _, ppo_cfg = training.load_run_config(run)
     assert ppo_cfg.policy_distribution == "tanh_normal" and ppo_cfg.deterministic_eval is False
-    training.load_checkpoint(training.latest_checkpoint(published)[0], 29, 12, ppo_cfg)
-    data = json.loads((published / "config.json").read_text())
+    assert json.loads(to_json(ppo_cfg)) == {**training.PPO_KEYS_ADDED, **data["ppo"]}
+    training.save_checkpoint(run, 8, training.params_template(29, 12, ppo_cfg))
+    policy, *_ = training.load_policy(run)
+    assert policy(jnp.zeros(29), None)[0].shape == (12,)
     data["ppo"]["policy_hiden"] = [8]
-    (tmp_path / "config.json").write_text(json.dumps(data))
+    (run / "config.json").write_text(json.dumps(data))
     with pytest.raises(ValueError, match="policy_hiden"):
-        training.load_run_config(tmp_path)
+        training.load_run_config(run)

@@ -82,6 +82,7 @@ def main(argv=None) -> int:
             ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
             env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
             ppo_cfg = apply_overrides(training.ppo_config(preset), ppo_over, prefix="ppo.")
+            training.check_ppo_config(ppo_cfg)
         except ValueError as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
