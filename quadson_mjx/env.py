@@ -57,6 +57,10 @@ class QuadsonEnv(Env):
         # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
         # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
         self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        if not cfg.get("base_terrain_contact", True):
+            base_geom = mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
+            self._mj_model.geom_contype[base_geom] = 0
+            self._mj_model.geom_conaffinity[base_geom] = 0
         self.sys = mjx.put_model(self._mj_model)
         sim_dt = float(self._mj_model.opt.timestep)
         n_sub = round(cfg.ctrl_dt / sim_dt)

@@ -9,10 +9,12 @@ import math
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
 from quadson_mjx import rewards
+from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import QuadsonEnv, quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.env_config import env_config
 from quadson_mjx.wrappers import wrap_for_training
@@ -185,3 +187,15 @@ def test_sensor_noise_is_fresh_every_step():
     noise = [np.asarray(s.obs - clean_env._get_obs(s.pipeline_state, s.info))[:21] for s in (s1, s2)]
     assert np.std(noise[0]) > 0.0 and np.std(noise[1]) > 0.0
     assert not np.allclose(noise[0], noise[1])
+
+
+def test_base_terrain_contact_off_leaves_only_the_feet():
+    # The flat scene's contact slots: base box-plane (4) + 4 foot spheres; without the base, 4.
+    from mujoco import mjx
+
+    for on, slots in ((True, 8), (False, 4)):
+        e = QuadsonEnv(apply_overrides(env_config(), [f"base_terrain_contact={on}"]))
+        contact = mjx.make_data(e.sys)._impl.contact
+        assert contact.dist.shape == (slots,)
+        geom = mujoco.mj_name2id(e.mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
+        assert bool(e.mj_model.geom_conaffinity[geom]) is on

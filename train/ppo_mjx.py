@@ -30,6 +30,8 @@ ENV_PRESETS = {
     "command": {"command_tracking": True},
     "robust": {"command_tracking": True, "randomize": True, "pushes": True},
 }
+# keys set after the preset's env_config(...) and before --env overrides
+ENV_PRESET_KEYS = {"robust": {"base_terrain_contact": False}}  # feet-only ground contact: see env_config
 
 
 def parse(argv):
@@ -78,6 +80,8 @@ def main(argv=None) -> int:
         try:
             env_cfg = env_config(terrain=args.terrain, **ENV_PRESETS[args.env_preset])
             env_cfg.gait_action = args.gait_action
+            for key, value in ENV_PRESET_KEYS.get(args.env_preset, {}).items():
+                env_cfg[key] = value
             env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
             ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
             env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
