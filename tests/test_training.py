@@ -204,3 +204,40 @@ def test_run_configs_written_before_new_keys_still_load(tmp_path):
     (run / "config.json").write_text(json.dumps(data))
     with pytest.raises(ValueError, match="policy_hiden"):
         training.load_run_config(run)
+
+
+def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):
+    # A scheduler's SIGTERM must leave what Ctrl-C leaves: a closed log and a resumable checkpoint.
+    import signal
+    import time
+
+    run = tmp_path / "r"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            str(ROOT / "train" / "ppo_mjx.py"),
+            "--preset",
+            "test",
+            "--run-dir",
+            str(run),
+            "--ppo.num_evals=3",
+            "--ppo.num_timesteps=192",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    deadline = time.monotonic() + 300
+    while not (run / "checkpoints" / "latest").exists():
+        assert proc.poll() is None and time.monotonic() < deadline, "no checkpoint before exit/timeout"
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 130, out[-2000:]
+    assert "--resume" in out
+    with open(run / "train.mcap", "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_summary() is not None
+        events = [json.loads(m.data)["event"] for _, c, m in reader.iter_messages(topics=["/train/log"])]
+    assert events == ["start", "interrupted"]
+    training.latest_checkpoint(run)  # resumable

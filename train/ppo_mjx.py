@@ -13,6 +13,7 @@ Env options: --env-preset seed|command|robust (seed 000's formulation; + velocit
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from pathlib import Path
@@ -62,8 +63,15 @@ def parse(argv):
     return args, rest
 
 
+def _terminate(signum, frame):
+    """SIGTERM (a cluster scheduler's preemption, `kill`) ends the run like Ctrl-C: log closed,
+    newest checkpoint kept, resumable."""
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def main(argv=None) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
+    signal.signal(signal.SIGTERM, _terminate)
     if args.coordinator:  # one process per host; brax trains on every process's local devices
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
     if args.resume:
