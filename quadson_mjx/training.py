@@ -85,7 +85,7 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
     presets = {
         "gpu": {},
         "cpu": {
-            # About 4 minutes on 2 cores. Starts from the gait (gait_normal, small exploration
+            # 2 min 40 s on 2 cores (measured). Starts from the gait (gait_normal, small exploration
             # noise): random initial offsets make the robot fall, and learning not to fall from
             # there takes more samples than a CPU gives in minutes (README: Results).
             "policy_distribution": "gait_normal",
