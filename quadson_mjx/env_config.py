@@ -55,6 +55,7 @@ def env_config(
     pushes: bool = False,
     terrain: str = "flat",
     gait: str = "trot",
+    base_terrain_contact: bool = True,
 ) -> ml_collections.ConfigDict:
     """The environment config. Defaults reproduce seed 000's RL formulation.
 
@@ -62,6 +63,7 @@ def env_config(
     randomize: domain randomization of friction, masses, motor strength, latency, sensor noise.
     pushes: random horizontal velocity kicks to the base.
     terrain: "flat" or "rough" (the heightfield scene).
+    base_terrain_contact: False lets only the feet touch the ground (see the key's comment).
     """
     if terrain not in ("flat", "rough"):
         raise ValueError(f"terrain must be 'flat' or 'rough', got {terrain!r}")
@@ -76,7 +78,7 @@ def env_config(
             # leaves only the feet touching the ground (the usual choice for MJX rough-terrain
             # training). At the termination limits (45 deg tilt, base 0.1 m up) the 34 x 16 x 8 cm
             # base box is still clear of level ground unless the body is both low and steeply tilted.
-            "base_terrain_contact": True,
+            "base_terrain_contact": base_terrain_contact,
             # 50 Hz control: the control rate of seed 003's gait planner and of MJX locomotion
             # benchmarks; the seed's 240 Hz with one action per physics step would make PPO's
             # horizon 5x longer for no gain in what a position servo can follow.

@@ -121,6 +121,12 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
     return cfg
 
 
+def local_devices_to_use(cfg) -> int:
+    """This process's devices brax trains on: all local ones, or ppo.max_devices of them."""
+    n = jax.local_device_count()
+    return min(n, cfg.max_devices) if cfg.max_devices else n
+
+
 def check_ppo_config(cfg) -> None:
     """Raises ValueError naming the key for a value brax would reject late or misread silently."""
     if cfg.policy_distribution not in POLICY_DISTRIBUTIONS:
@@ -143,9 +149,7 @@ def check_ppo_config(cfg) -> None:
             raise ValueError(f"ppo.{key} must be >= 1, got {cfg[key]}")
     if cfg.max_devices < 0:
         raise ValueError(f"ppo.max_devices must be >= 0 (0: all), got {cfg.max_devices}")
-    devices = jax.local_device_count()
-    devices = min(devices, cfg.max_devices) if cfg.max_devices else devices
-    devices *= jax.process_count()
+    devices = local_devices_to_use(cfg) * jax.process_count()
     for key in ("num_envs", "batch_size"):
         if cfg[key] % devices:
             raise ValueError(f"ppo.{key}={cfg[key]} does not split evenly over {devices} devices")
@@ -435,10 +439,8 @@ def train(
 
     episode_length = ppo_cfg.episode_length or env.episode_length
     randomize = randomization_fn(env_cfg.randomization, env.base_body) if env_cfg.randomize else None
-    devices = jax.local_device_count()
-    devices = min(devices, ppo_cfg.max_devices) if ppo_cfg.max_devices else devices
     multi_device = (
-        compat.brax_multi_device(devices)
+        compat.brax_multi_device(local_devices_to_use(ppo_cfg))
         if ppo_cfg.multi_device == "sharded_jit"
         else contextlib.nullcontext()
     )

@@ -118,17 +118,22 @@ def test_new_run_refuses_a_non_empty_directory(tmp_path):
         training.train(_small_env(), training.ppo_config("test"), tmp_path)
 
 
+def _script(run_dir, *args) -> list[str]:
+    """Command line of the training script with the test preset in run_dir."""
+    return [
+        sys.executable,
+        str(ROOT / "train" / "ppo_mjx.py"),
+        "--preset",
+        "test",
+        "--run-dir",
+        str(run_dir),
+        *args,
+    ]
+
+
 def test_script_rejects_a_bad_override_key_naming_it(tmp_path):
     out = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "train" / "ppo_mjx.py"),
-            "--preset",
-            "test",
-            "--run-dir",
-            str(tmp_path / "r"),
-            "--env.reward.forwad_target=0.4",
-        ],
+        _script(tmp_path / "r", "--env.reward.forwad_target=0.4"),
         capture_output=True,
         text=True,
         timeout=300,
@@ -213,16 +218,7 @@ def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):
 
     run = tmp_path / "r"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            str(ROOT / "train" / "ppo_mjx.py"),
-            "--preset",
-            "test",
-            "--run-dir",
-            str(run),
-            "--ppo.num_evals=3",
-            "--ppo.num_timesteps=192",
-        ],
+        _script(run, "--ppo.num_evals=3", "--ppo.num_timesteps=192"),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
