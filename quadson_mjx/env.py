@@ -61,7 +61,17 @@ class QuadsonEnv(Env):
             base_geom = mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
             self._mj_model.geom_contype[base_geom] = 0
             self._mj_model.geom_conaffinity[base_geom] = 0
-        self.sys = mjx.put_model(self._mj_model)
+        if not cfg.get("joint_limits", True):
+            self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+        cones = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
+        cone = cfg.get("cone", "pyramidal")
+        if cone not in cones:
+            raise ValueError(f"env.cone is {cone!r}; choose from {sorted(cones)}")
+        self._mj_model.opt.cone = cones[cone]
+        impl = cfg.get("impl", "jax")
+        if impl not in ("jax", "warp"):
+            raise ValueError(f"env.impl is {impl!r}; choose 'jax' or 'warp' (warp needs warp-lang)")
+        self.sys = mjx.put_model(self._mj_model, impl=impl)
         sim_dt = float(self._mj_model.opt.timestep)
         n_sub = round(cfg.ctrl_dt / sim_dt)
         if n_sub < 1 or abs(n_sub * sim_dt - cfg.ctrl_dt) > 1e-9:

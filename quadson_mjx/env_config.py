@@ -56,6 +56,7 @@ def env_config(
     terrain: str = "flat",
     gait: str = "trot",
     base_terrain_contact: bool = True,
+    joint_limits: bool = True,
 ) -> ml_collections.ConfigDict:
     """The environment config. Defaults reproduce seed 000's RL formulation.
 
@@ -64,6 +65,7 @@ def env_config(
     pushes: random horizontal velocity kicks to the base.
     terrain: "flat" or "rough" (the heightfield scene).
     base_terrain_contact: False lets only the feet touch the ground (see the key's comment).
+    joint_limits: False drops the motor joints' limit rows from the solver (see the key's comment).
     """
     if terrain not in ("flat", "rough"):
         raise ValueError(f"terrain must be 'flat' or 'rough', got {terrain!r}")
@@ -79,6 +81,15 @@ def env_config(
             # training). At the termination limits (45 deg tilt, base 0.1 m up) the 34 x 16 x 8 cm
             # base box is still clear of level ground unless the body is both low and steeply tilted.
             "base_terrain_contact": base_terrain_contact,
+            # Joint-limit rows of the 12 motor joints. MJX's solver carries one constraint row per
+            # limited joint every step, active or not; the servos' targets stay inside the ranges
+            # (the IK clamps), so False trades that guard for speed (benchmarks/physics_vs_go1.py).
+            "joint_limits": joint_limits,
+            # Friction cone of the contacts: "pyramidal" (MuJoCo's default, 4 rows per condim-3
+            # contact) or "elliptic" (3 rows).
+            "cone": "pyramidal",
+            # MJX implementation: "jax" (this project's measured path) or "warp" (needs warp-lang).
+            "impl": "jax",
             # 50 Hz control: the control rate of seed 003's gait planner and of MJX locomotion
             # benchmarks; the seed's 240 Hz with one action per physics step would make PPO's
             # horizon 5x longer for no gain in what a position servo can follow.

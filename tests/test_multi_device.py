@@ -81,6 +81,11 @@ def test_two_devices_sharded_jit_matches_pmap_and_trains(tmp_path):
     assert epoch["all-reduce"] >= 1 and epoch["all-gather"] == 0 and epoch["all-to-all"] == 0
     assert result["training_epoch_compiles"] == 1  # 2 before the placement fix (compat)
     assert result["evaluation_compiles"] == 1  # 2 before compat.brax_evaluator_compiles_once
+    # The log's compile counter (jax.monitoring) agrees with jax's own compile log at the end, and
+    # after the first training epoch nothing compiles again (evaluations at steps 0, 128, 256).
+    at_evals = result["xla_compiles_at_evals"]
+    assert len(at_evals) == 3 and at_evals[-1] == at_evals[1] > at_evals[0] > 0
+    assert result["xla_compiles_logged"] >= at_evals[-1]
     assert result["finished"] and result["checkpoint_step"] > 0
     assert all(np.isfinite(v) for v in result["eval"].values())
 

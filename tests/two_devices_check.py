@@ -75,8 +75,13 @@ def main(run_dir: str) -> None:
     logging.getLogger("jax").addHandler(handler)
     ppo = apply_overrides(training.ppo_config("test"), ["num_evals=3", "num_timesteps=256"])
     env = apply_overrides(env_config(), ["episode_length_s=0.2"])
+    counted = []  # the training log's own count of XLA compilations, at each evaluation
     with jax.log_compiles(True):
-        _, _, metrics = training.train(env, ppo, run_dir)
+        _, _, metrics = training.train(
+            env, ppo, run_dir, on_eval=lambda step, record: counted.append(record["progress/xla_compiles"])
+        )
+    out["xla_compiles_at_evals"] = counted
+    out["xla_compiles_logged"] = sum(m.startswith("Finished XLA compilation") for m in messages)
     out["training_epoch_compiles"] = sum(m.startswith("Compiling jit(training_epoch)") for m in messages)
     out["evaluation_compiles"] = sum(m.startswith("Compiling jit(generate_eval_unroll)") for m in messages)
     out["finished"] = metrics["progress/step"] >= 256

@@ -1,0 +1,216 @@
+"""Quadson's MJX physics against MuJoCo Playground's feet-only Go1, in one run, per physics setting.
+
+    python benchmarks/physics_vs_go1.py --go1-scene PATH/scene_mjx_feetonly_flat_terrain.xml \
+        --envs 8192 32768 --out benchmarks/results_physics_vs_go1_h100.json
+
+The anchor is Playground's `go1_mjx_feetonly.xml` flat scene (not part of this project: pass the path
+of a checkout's `mujoco_playground/_src/locomotion/go1/xmls/scene_mjx_feetonly_flat_terrain.xml`;
+its visual meshes, contype 0 and massless, are dropped so no mesh files are needed). Both robots run
+the same protocol: N worlds, 5 physics steps of 4 ms per 0.02 s control step, position targets =
+home + N(0, 0.1 rad) drawn every control step; one jitted lax.scan over --steps control steps,
+compiled once, best of --repeats timed runs.
+
+Each Quadson setting (a change of the environment's model, see SETTINGS) is measured twice:
+physics only as above, and the full environment (gait + IK + physics + reward + observation,
+`jit(vmap(env.step))`) under the gait with actions drawn uniform in [-0.2, 0.2] (foot offsets of at
+most 1 cm), which also reports the five-bar closure residual (max over worlds and control steps
+of the distance between each leg's two p3 sites) and the share of worlds that fell. Prints a
+markdown table; the JSON is rewritten after every measurement.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from mujoco import mjx  # noqa: E402
+
+from quadson_mjx import model as qmodel  # noqa: E402
+from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env_config import env_config  # noqa: E402
+
+NOISE_RAD = 0.1
+ACTION_RANGE = 0.2
+
+# name -> env config overrides; "env" is the environment's model as the seed preset runs it.
+SETTINGS: dict[str, dict] = {
+    "env": {},
+    "feet_only": {"base_terrain_contact": False},
+    "feet_only_nolimit": {"base_terrain_contact": False, "joint_limits": False},
+    "feet_only_elliptic": {"base_terrain_contact": False, "cone": "elliptic"},
+    "feet_only_nolimit_elliptic": {"base_terrain_contact": False, "joint_limits": False, "cone": "elliptic"},
+}
+
+
+def _best_time(fn, args, repeats: int) -> tuple[float, float]:
+    """-> (best wall time of `repeats` runs, compile + first run) [s]."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best, first
+
+
+def load_go1(scene: str) -> mujoco.MjModel:
+    """Playground's feet-only Go1 scene without its visual meshes (collision-free, massless)."""
+    spec = mujoco.MjSpec.from_file(scene)
+    for g in list(spec.geoms):
+        if g.type == mujoco.mjtGeom.mjGEOM_MESH:
+            spec.delete(g)
+    for m in list(spec.meshes):
+        spec.delete(m)
+    return spec.compile()
+
+
+def physics_only(m: mujoco.MjModel, qpos0, ctrl0, n_envs: int, steps: int, repeats: int) -> dict:
+    """Control steps/s of bare MJX stepping with noisy position targets around ctrl0."""
+    mx = mjx.put_model(m)
+    n_sub = round(0.02 / m.opt.timestep)
+    ctrl0 = jnp.asarray(ctrl0)
+
+    def one_world(_):
+        d = mjx.make_data(mx).replace(qpos=jnp.asarray(qpos0), ctrl=ctrl0)
+        return mjx.forward(mx, d)
+
+    @jax.jit
+    def rollout(data, key):
+        def ctrl_step(d, k):
+            d = d.replace(ctrl=ctrl0 + NOISE_RAD * jax.random.normal(k, (n_envs, ctrl0.shape[0])))
+
+            def sub(d, _):
+                return jax.vmap(mjx.step, in_axes=(None, 0))(mx, d), None
+
+            d, _ = jax.lax.scan(sub, d, None, length=n_sub)
+            return d, None
+
+        data, _ = jax.lax.scan(ctrl_step, data, jax.random.split(key, steps))
+        return data.qpos
+
+    data = jax.jit(jax.vmap(one_world))(jnp.arange(n_envs))
+    best, first = _best_time(rollout, (data, jax.random.PRNGKey(1)), repeats)
+    return {"physics_steps_per_s": n_envs * steps / best, "physics_compile_s": first - best}
+
+
+def env_under_gait(env: QuadsonEnv, n_envs: int, steps: int, repeats: int) -> dict:
+    """Env steps/s, closure residual [m] and fallen share under the gait with small offsets."""
+    ids = qmodel.model_ids(env.mj_model)
+    step = jax.vmap(env.step)
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n_envs))
+
+    @jax.jit
+    def rollout(state, key):
+        def body(carry, k):
+            s, res, fell = carry
+            a = jax.random.uniform(k, (n_envs, env.action_size), minval=-ACTION_RANGE, maxval=ACTION_RANGE)
+            s = step(s, a)
+            r = jax.vmap(lambda x: jnp.max(qmodel.closure_residual_mjx(x, ids)))(s.pipeline_state.site_xpos)
+            return (s, jnp.maximum(res, r), fell | (s.done > 0)), None
+
+        init = (state, jnp.zeros(n_envs), jnp.zeros(n_envs, bool))
+        (state, res, fell), _ = jax.lax.scan(body, init, jax.random.split(key, steps))
+        return res, fell
+
+    best, first = _best_time(rollout, (state, jax.random.PRNGKey(1)), repeats)
+    res, fell = rollout(state, jax.random.PRNGKey(1))
+    return {
+        "env_steps_per_s": n_envs * steps / best,
+        "env_compile_s": first - best,
+        "closure_residual_max_m": float(jnp.max(res)),
+        "closure_residual_p99_m": float(jnp.percentile(res, 99)),
+        "fell_frac": float(jnp.mean(fell)),
+    }
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--go1-scene", default=None, help="Playground's scene_mjx_feetonly_flat_terrain.xml")
+    p.add_argument("--go1-no-sensors", action="store_true", help="also measure Go1 with its sensors off")
+    p.add_argument("--envs", type=int, nargs="+", default=[8192, 32768])
+    p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
+    p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    p.add_argument("--out", default=None)
+    args = p.parse_args(argv)
+    meta = {
+        "device": jax.devices()[0].device_kind,
+        "jax": jax.__version__,
+        "mujoco": mujoco.__version__,
+        "python": platform.python_version(),
+        "args": vars(args),
+    }
+    rows: list[dict] = []
+
+    def record(row):
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        if args.out:
+            Path(args.out).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+
+    print(f"# {meta}", flush=True)
+    if args.go1_scene:
+        go1 = load_go1(args.go1_scene)
+        key = mujoco.mj_name2id(go1, mujoco.mjtObj.mjOBJ_KEY, "home")
+        for sensors in (True, False) if args.go1_no_sensors else (True,):
+            m = load_go1(args.go1_scene)
+            if not sensors:
+                m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+            for n in args.envs:
+                out = physics_only(m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats)
+                record(
+                    {
+                        "robot": "go1_feetonly",
+                        "setting": "sensors" if sensors else "no_sensors",
+                        "envs": n,
+                        **out,
+                    }
+                )
+    for name in args.settings:
+        cfg = env_config()
+        for key, value in SETTINGS[name].items():
+            cfg[key] = value
+        env = QuadsonEnv(cfg)
+        m = env.mj_model
+        dx = mjx.make_data(env.sys)
+        for n in args.envs:
+            row = {"robot": "quadson", "setting": name, "envs": n, "nefc": int(dx._impl.efc_J.shape[0])}
+            row.update(physics_only(m, qmodel.home_qpos(m), qmodel.home_ctrl(m), n, args.steps, args.repeats))
+            row.update(env_under_gait(env, n, args.steps, args.repeats))
+            record(row)
+
+    anchor = {
+        r["envs"]: r["physics_steps_per_s"]
+        for r in rows
+        if r["robot"] == "go1_feetonly" and r["setting"] == "sensors"
+    }
+    print(f"\ndevice: {meta['device']}; {args.steps} control steps of 0.02 s (5 physics steps each)")
+    print(
+        "| robot | setting | envs | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        ratio = f"{r['physics_steps_per_s'] / anchor[r['envs']]:.2f}x" if r["envs"] in anchor else "-"
+        env_sps = f"{r['env_steps_per_s']:,.0f}" if "env_steps_per_s" in r else "-"
+        res = f"{1e3 * r['closure_residual_max_m']:.2f} mm" if "closure_residual_max_m" in r else "-"
+        fell = f"{100 * r['fell_frac']:.1f} %" if "fell_frac" in r else "-"
+        print(
+            f"| {r['robot']} | {r['setting']} | {r['envs']} | {r.get('nefc', '-')} | "
+            f"{r['physics_steps_per_s']:,.0f} | {ratio} | {env_sps} | {res} | {fell} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
