@@ -100,6 +100,7 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
             "episode_length": 250,
             "batch_size": 128,
             "num_minibatches": 8,
+            "learning_rate": 3e-4,
             "policy_hidden": (64, 64),
             "value_hidden": (128, 128),
         },
