@@ -6,7 +6,7 @@
     python train/ppo_mjx.py --resume runs/20261121-101500
 
 Env options: --env-preset seed|command|robust (seed 000's formulation; + velocity commands;
-+ commands, domain randomization, pushes). Any config key can be overridden with --env.KEY=VALUE or
+the joystick recipe with domain randomization and pushes). Any config key can be overridden with --env.KEY=VALUE or
 --ppo.KEY=VALUE; an unknown key is an error naming it.
 """
 
@@ -29,8 +29,10 @@ from quadson_mjx.env_config import env_config  # noqa: E402
 ENV_PRESETS = {
     "seed": {},
     "command": {"command_tracking": True},
-    # feet-only ground contact: the box-heightfield collision is expensive (see env_config)
-    "robust": {"command_tracking": True, "randomize": True, "pushes": True, "base_terrain_contact": False},
+    # the joystick recipe (commands resampled every 4-8 s, 10 % zero, the sweep's range, base-in-ground
+    # termination) with randomization and pushes; feet-only ground contact: the box-heightfield
+    # collision is expensive (see env_config)
+    "robust": {"joystick": True, "randomize": True, "pushes": True, "base_terrain_contact": False},
 }
 
 
