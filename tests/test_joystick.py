@@ -200,3 +200,28 @@ def test_old_run_configs_load_with_their_behaviour():
         del node[leaf]
     assert now == published
     assert math.isinf(float(QuadsonEnv(env_config()).sample_command(jax.random.PRNGKey(0))[1]))
+
+
+def test_gait_reach_over_the_joystick_range():
+    # Pins the README's measurement: the trot's foot targets over one cycle (200 samples x 4 legs)
+    # for a 9 x 5 x 9 grid over vx [-0.3, 0.5], vy [-0.2, 0.2], yaw rate [-0.8, 0.8]; the IK's
+    # validity flags say which were clamped.
+    from quadson_mjx import gait
+
+    p = gait.gait_params("trot", swing="bezier_seed")
+    t = jnp.linspace(0.0, float(p.cycle_s), 200, endpoint=False)
+
+    @jax.jit
+    @jax.vmap
+    def clamped(cmd):
+        return jnp.sum(~gait.motor_targets(gait.foot_targets(t, cmd, p))[1])
+
+    g = np.meshgrid(
+        np.linspace(-0.3, 0.5, 9), np.linspace(-0.2, 0.2, 5), np.linspace(-0.8, 0.8, 9), indexing="ij"
+    )
+    grid = np.stack([a.ravel() for a in g], axis=-1)
+    n = np.asarray(clamped(jnp.asarray(grid, jnp.float32)))
+    assert int((n > 0).sum()) == 61 and grid[n > 0, 0].min() == pytest.approx(0.4)
+    assert n.max() == 39  # of 800: 4.9 %, at (0.5, +-0.2, +-0.8)
+    corners = np.asarray(clamped(jnp.array([[0.48, 0, 0], [0.5, 0, 0], [0.5, 0, 0.8]], jnp.float32)))
+    np.testing.assert_array_equal(corners, [0, 10, 29])  # 0 %, 1.3 %, 3.6 %
