@@ -2,7 +2,8 @@
 
     python eval/report.py runs/compare/*.mcap --out-dir runs/compare
 
-Writes OUT_DIR/report.md, OUT_DIR/report.json and, when matplotlib is installed (the `report` extra),
+Writes OUT_DIR/report.md (seed 000 and seed 003 tables, command tracking: RMS error per axis, falls,
+time the base spent in the ground; per commanded value for the command sweep), OUT_DIR/report.json and, when matplotlib is installed (the `report` extra),
 OUT_DIR/<terrain>_<task>.png: base velocity (vx, or yaw rate when turning), roll and pitch over time of
 environment 0 of every controller. Metrics: quadson_mjx.report. Files come from eval/rollout.py
 (`--suite` writes the whole comparison set).
@@ -31,7 +32,8 @@ def plot(trials, out_dir: Path) -> list[Path]:
     written = []
     groups: dict[tuple[str, str], list] = {}
     for t in trials:
-        groups.setdefault((t.terrain, t.task), []).append(t)
+        if t.task != "sweep":  # one command per env: its tables are in report.md
+            groups.setdefault((t.ground, t.task), []).append(t)
     for (terrain, task), group in sorted(groups.items()):
         fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
         speed_key, speed_label = ("wz", "yaw rate [rad/s]") if task == "turn" else ("vx", "vx [m/s]")
@@ -49,7 +51,7 @@ def plot(trials, out_dir: Path) -> list[Path]:
         axes[-1].set_xlabel("time [s] (env 0, until its first fall)")
         fig.suptitle(f"{terrain} ground, {task}")
         fig.tight_layout()
-        path = out_dir / f"{terrain}_{task}.png"
+        path = out_dir / f"{terrain.replace(', ', '_')}_{task}.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
         written.append(path)
@@ -61,11 +63,15 @@ def main(argv=None) -> int:
     p.add_argument("files", nargs="+")
     p.add_argument("--out-dir", default="runs/compare")
     p.add_argument("--window-s", type=float, default=3.0, help="seed 000 trial length [s]")
+    p.add_argument(
+        "--settle-s", type=float, default=1.0, help="tracking errors skip each episode's start [s]"
+    )
+    p.add_argument("--avg-s", type=float, default=0.8, help="moving mean of the averaged tracking error [s]")
     args = p.parse_args(argv)
     out_dir = Path(args.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     trials = [R.load_trial(f) for f in args.files]
-    md = R.markdown(trials, args.window_s)
+    md = R.markdown(trials, args.window_s, args.settle_s, args.avg_s)
     (out_dir / "report.md").write_text(md)
     (out_dir / "report.json").write_text(R.summary_json(trials, args.window_s))
     pngs = plot(trials, out_dir)

@@ -11,7 +11,11 @@ step together on the accelerator (vmap of env.step under lax.scan); the host wri
 (topics: quadson_mjx.foxglove_mcap). Without --vx/--vy/--yaw-rate the gait's seed-speed forward walk
 is commanded. An episode that ends (fall) restarts from the first state; every env is one episode
 of the trial otherwise. `--suite` writes one file per controller x terrain (flat, rough) x command
-(forward at the gait's seed speed; turning in place at 0.25 rad/s), for eval/report.py.
+(forward at the gait's seed speed; turning in place at 0.25 rad/s; the command sweep: 75 envs, each
+with its own command of the grid vx in [-0.3, 0.5], vy in [-0.2, 0.2], yaw rate in [-0.8, 0.8]),
+for eval/report.py. With --run, the named controllers get the policy's ground contact and
+termination settings, so that falls mean the same. `--randomize` switches domain randomization
+(one randomized model per env) and pushes on, for every controller.
 Env config keys can be overridden with --env.KEY=VALUE (named controllers only).
 Check a file: python -m quadson_mjx.mcap_check FILE --rollout
 """
@@ -24,6 +28,7 @@ import time
 from pathlib import Path
 
 import jax
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -31,9 +36,36 @@ from quadson_mjx import foxglove_mcap, gait  # noqa: E402
 from quadson_mjx import rollout as R  # noqa: E402
 from quadson_mjx.config import apply_overrides  # noqa: E402
 from quadson_mjx.env import QuadsonEnv  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
+from quadson_mjx.env_config import env_config, with_added_keys  # noqa: E402
 
 SUITE_YAW_RATE = 0.25  # rad/s, seed 003's turning test
+# the command sweep: the joystick range of the issue, a 5 x 3 x 5 grid (75 envs, one command each)
+SWEEP_GRID = {
+    "vx": (-0.3, -0.1, 0.1, 0.3, 0.5),
+    "vy": (-0.2, 0.0, 0.2),
+    "yaw_rate": (-0.8, -0.4, 0.0, 0.4, 0.8),
+}
+RANDOMIZE_OVERRIDES = ["randomize=true", "pushes=true"]
+
+
+def sweep_commands() -> np.ndarray:
+    """(75, 3) the sweep's commands (vx, vy, yaw rate), vx slowest."""
+    g = np.meshgrid(*SWEEP_GRID.values(), indexing="ij")
+    return np.stack([a.ravel() for a in g], axis=-1)
+
+
+def policy_ground_overrides(run_dir) -> list[str]:
+    """The policy's ground contact and termination settings, for the named controllers of a suite."""
+    if not run_dir:
+        return []
+    from quadson_mjx import training
+
+    cfg = with_added_keys(training.load_run_config(Path(run_dir))[0])
+    return [
+        f"base_terrain_contact={cfg.base_terrain_contact}",
+        f"termination.base_below_terrain={cfg.termination.base_below_terrain}",
+        f"termination.base_clearance_m={cfg.termination.base_clearance_m}",
+    ]
 
 
 def parse(argv):
@@ -56,6 +88,10 @@ def parse(argv):
     p.add_argument(
         "--suite", action="store_true", help="controllers x terrains x commands for eval/report.py"
     )
+    p.add_argument(
+        "--randomize", action="store_true", help="domain randomization (a model per env) and pushes on"
+    )
+    p.add_argument("--no-sweep", action="store_true", help="--suite without the command sweep")
     p.add_argument("--overwrite", action="store_true")
     args, rest = p.parse_known_args(argv)
     bad = [r for r in rest if not r.startswith("--env.")]
@@ -72,12 +108,16 @@ def build(args, overrides, controller_name: str, terrain: str | None):
         policy, env_cfg, _, _ = training.load_policy(Path(args.run), args.checkpoint)
         if overrides:
             raise SystemExit("--env overrides are not allowed with --run: the policy's env config is used")
+        env_cfg = with_added_keys(env_cfg)
         if terrain and terrain != env_cfg.terrain:
             env_cfg = apply_overrides(env_cfg, [f"terrain={terrain}"])
+        if args.randomize:
+            env_cfg = apply_overrides(env_cfg, RANDOMIZE_OVERRIDES)
         env = QuadsonEnv(env_cfg)
         ckpt = args.checkpoint or str(training.latest_checkpoint(Path(args.run))[0])
         return env, R.policy_controller(policy), {"run_dir": str(args.run), "checkpoint": ckpt}
-    env_cfg = apply_overrides(env_config(terrain=terrain or "flat", gait=args.gait), overrides)
+    extra = RANDOMIZE_OVERRIDES if args.randomize else []
+    env_cfg = apply_overrides(env_config(terrain=terrain or "flat", gait=args.gait), [*overrides, *extra])
     env = QuadsonEnv(env_cfg)
     return env, R.named_controller(env, controller_name), {"run_dir": "", "checkpoint": ""}
 
@@ -89,6 +129,7 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
         vx = seed_speed if args.vx is None else args.vx
         command = (vx, args.vy, args.yaw_rate)
     n_steps = max(1, round(args.seconds / env.ctrl_dt))
+    n_envs = len(command) if np.ndim(command) == 2 else args.envs
     out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     summary = foxglove_mcap.record(
@@ -96,17 +137,19 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
         env,
         controller,
         jax.random.PRNGKey(args.seed),
-        args.envs,
+        n_envs,
         n_steps,
         command=command,
         segment_steps=args.segment_steps,
         metadata={**meta, "seed": args.seed, "trial_s": n_steps * env.ctrl_dt},
         overwrite=args.overwrite,
         viz_envs=args.viz_envs,
+        randomize=args.randomize,
     )
+    shown = "sweep" if np.ndim(command) == 2 else tuple(round(c, 3) for c in command)
     print(
-        f"{out}: {controller.name}, {env.config.terrain}, command {tuple(round(c, 3) for c in command)}, "
-        f"{args.envs} env(s) x {n_steps} steps, {summary['falls']} fall(s), "
+        f"{out}: {controller.name}, {env.config.terrain}, command {shown}, "
+        f"{n_envs} env(s) x {n_steps} steps, {summary['falls']} fall(s), {summary['off_field']} at the edge, "
         f"{summary['nan_resets']} non-finite reset(s), {time.monotonic() - t0:.0f} s"
     )
 
@@ -123,11 +166,18 @@ def main(argv=None) -> int:
         return 0
     names = [*R.CONTROLLERS, *(["policy"] if args.run else [])]
     out_dir = Path(args.out_dir)
+    tasks = {
+        "forward": None,
+        "turn": (0.0, 0.0, SUITE_YAW_RATE),
+        **({} if args.no_sweep else {"sweep": sweep_commands()}),
+    }
+    named_overrides = [*policy_ground_overrides(args.run), *overrides]
+    tag = "_randomized" if args.randomize else ""
     for name in names:
         for terrain in ("flat", "rough"):
-            for task in ("forward", "turn"):
-                command = None if task == "forward" else (0.0, 0.0, SUITE_YAW_RATE)
-                one(args, overrides, name, terrain, command, out_dir / f"{name}_{terrain}_{task}.mcap")
+            for task, command in tasks.items():
+                path = out_dir / f"{name}_{terrain}{tag}_{task}.mcap"
+                one(args, named_overrides, name, terrain, command, path)
     print(f"compare: python eval/report.py {out_dir}/*.mcap --out-dir {out_dir}")
     return 0
 

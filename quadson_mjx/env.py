@@ -9,6 +9,14 @@ several physics steps. Pure `reset(rng)` / `step(state, action)` in brax's `Env`
 Safety inside jit: a non-finite or exploded physics state ends the episode, its observation and
 reward are replaced by zeros, and `metrics["nan_reset"]` counts it. An unreachable foot target is
 clamped by the inverse kinematics and counted in `metrics["ik_invalid_legs"]`; it never becomes NaN.
+
+Heights are measured from the ground under the base (`quadson_mjx.terrain`), so the height reward and
+the minimum-height termination mean the same on stones as on the plane. Per step, the metrics hold the
+squared tracking errors of vx, vy and yaw rate against the command (brax sums them over an episode;
+mean and RMS follow from the episode length), `fall`, `base_below_terrain` (a point of the base box's
+bottom face below the ground under it: with feet-only contact the box would otherwise sink into a
+stone unnoticed; it ends the episode when `termination.base_below_terrain`) and `off_field` (the
+base reached the edge of the stone field: a truncation, not a fall).
 """
 
 from __future__ import annotations
@@ -20,10 +28,10 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
-from quadson_mjx import gait, rewards
+from quadson_mjx import gait, rewards, terrain
 from quadson_mjx import model as qmodel
 from quadson_mjx.config import freeze
-from quadson_mjx.env_config import env_config
+from quadson_mjx.env_config import env_config, with_added_keys
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no Quadson state is this fast; treat it as a blown-up solve
 
@@ -35,6 +43,21 @@ def quat_to_rpy(quat):
     pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
     yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return jnp.stack([roll, pitch, yaw], axis=-1)
+
+
+def quat_rotate(quat, vec):
+    """Rotates vec (..., 3) from the frame of quat (..., 4, wxyz) into the world frame."""
+    w, u = quat[..., :1], quat[..., 1:]
+    t = 2.0 * jnp.cross(u, vec)
+    return vec + w * t + jnp.cross(u, t)
+
+
+def base_bottom_points(half_size, n_x: int = 5, n_y: int = 3) -> np.ndarray:
+    """(n_x * n_y, 3) grid over the bottom face of a box of half_size (3,) [m], box frame: where a
+    tilted box meets a height field first (its lowest points are on that face up to 90 deg of tilt)."""
+    hx, hy, hz = half_size
+    x, y = np.meshgrid(np.linspace(-hx, hx, n_x), np.linspace(-hy, hy, n_y), indexing="ij")
+    return np.stack([x.ravel(), y.ravel(), np.full(x.size, -hz)], axis=-1)
 
 
 def quat_rotate_inverse(quat, vec):
@@ -49,29 +72,52 @@ class QuadsonEnv(Env):
 
     # info entries that restart from the first state when an episode ends (see wrappers.py)
     RESTART_INFO = ("gait_progress", "episode_time", "last_ctrl", "foot_targets")
+    # per-step metrics besides the reward terms; brax's evaluator sums each over an episode
+    STEP_METRICS = (
+        "ik_invalid_legs",
+        "nan_reset",
+        "forward_speed",
+        "abs_roll",
+        "abs_pitch",
+        "vx_sq_err",  # (vx - command vx)^2 [m^2/s^2], body frame
+        "vy_sq_err",
+        "yaw_rate_sq_err",  # (wz - command yaw rate)^2 [rad^2/s^2]
+        "base_height",  # base origin above the ground under it [m]
+        "base_below_terrain",  # 1 when the base box's bottom face is below the ground under it
+        "fall",  # 1 on the step an episode ends by tilt, height or the base in the ground
+        "off_field",  # 1 on the step an episode ends at the stone field's edge (a truncation)
+    )
 
     def __init__(self, config=None):
-        cfg = env_config() if config is None else config
+        cfg = with_added_keys(env_config() if config is None else config)
         self._config = freeze(cfg)
         self._mj_model = qmodel.load_model(cfg.terrain)
         # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
         # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
         self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
-        if not cfg.get("base_terrain_contact", True):
+        if not cfg.base_terrain_contact:
             base_geom = mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
             self._mj_model.geom_contype[base_geom] = 0
             self._mj_model.geom_conaffinity[base_geom] = 0
-        if not cfg.get("joint_limits", True):
+        if not cfg.joint_limits:
             self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
         cones = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
-        cone = cfg.get("cone", "pyramidal")
+        cone = cfg.cone
         if cone not in cones:
             raise ValueError(f"env.cone is {cone!r}; choose from {sorted(cones)}")
         self._mj_model.opt.cone = cones[cone]
-        impl = cfg.get("impl", "jax")
+        impl = cfg.impl
         if impl not in ("jax", "warp"):
             raise ValueError(f"env.impl is {impl!r}; choose 'jax' or 'warp' (warp needs warp-lang)")
         self.sys = mjx.put_model(self._mj_model, impl=impl)
+        self._field = terrain.heightfield(self._mj_model)
+        base_geom = mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
+        if not np.allclose(self._mj_model.geom_quat[base_geom], (1, 0, 0, 0)):
+            raise ValueError("base_collision must be aligned with the base body")
+        self._base_bottom = jnp.asarray(
+            base_bottom_points(self._mj_model.geom_size[base_geom]) + self._mj_model.geom_pos[base_geom],
+            jnp.float32,
+        )  # (15, 3) base frame [m]
         sim_dt = float(self._mj_model.opt.timestep)
         n_sub = round(cfg.ctrl_dt / sim_dt)
         if n_sub < 1 or abs(n_sub * sim_dt - cfg.ctrl_dt) > 1e-9:
@@ -124,16 +170,34 @@ class QuadsonEnv(Env):
     def ctrl_dt(self) -> float:
         return self._ctrl_dt
 
+    def sample_command(self, rng):
+        """-> (command (3,) vx [m/s], vy [m/s], yaw rate [rad/s], seconds until the next one).
+
+        Uniform over command_range, zero with probability command_zero_prob; the timer is
+        U(command_resample_s), or +inf when resampling is off ((0, 0)). Without command_tracking: the
+        gait's seed-speed forward walk, never resampled."""
+        cfg = self._config
+        if not cfg.command_tracking:
+            return jnp.array([self._seed_speed, 0.0, 0.0]), jnp.array(jnp.inf)
+        k_cmd, k_zero, k_timer = jax.random.split(rng, 3)
+        r = cfg.command_range
+        lo = jnp.array([r.vx[0], r.vy[0], r.yaw_rate[0]])
+        hi = jnp.array([r.vx[1], r.vy[1], r.yaw_rate[1]])
+        command = jax.random.uniform(k_cmd, (3,), minval=lo, maxval=hi)
+        if cfg.command_zero_prob > 0:
+            command = jnp.where(jax.random.bernoulli(k_zero, cfg.command_zero_prob), 0.0, command)
+        lo_s, hi_s = cfg.command_resample_s
+        if hi_s > 0:
+            timer = jax.random.uniform(k_timer, (), minval=lo_s, maxval=hi_s)
+        else:
+            timer = jnp.array(jnp.inf)
+        return command, timer
+
     def episode_info(self, rng):
-        """What is sampled anew for every episode: command, latency, push timer. rng: key."""
+        """What is sampled anew for every episode: command and its timer, latency, push timer. rng: key."""
         cfg = self._config
         k_cmd, k_lat, k_push, k_noise = jax.random.split(rng, 4)
-        if cfg.command_tracking:
-            lo = jnp.array([cfg.command_range.vx[0], cfg.command_range.vy[0], cfg.command_range.yaw_rate[0]])
-            hi = jnp.array([cfg.command_range.vx[1], cfg.command_range.vy[1], cfg.command_range.yaw_rate[1]])
-            command = jax.random.uniform(k_cmd, (3,), minval=lo, maxval=hi)
-        else:
-            command = jnp.array([self._seed_speed, 0.0, 0.0])
+        command, command_timer = self.sample_command(k_cmd)
         if cfg.randomize:
             lo_s, hi_s = cfg.randomization.latency_s
             latency = jax.random.uniform(k_lat, (), minval=lo_s, maxval=hi_s)
@@ -145,6 +209,7 @@ class QuadsonEnv(Env):
         )
         return {
             "command": command,
+            "command_timer": command_timer,  # seconds until the next command [s]
             "latency_steps": latency_steps,
             "push_timer": push_timer,
             "rng": k_noise,
@@ -165,13 +230,7 @@ class QuadsonEnv(Env):
             "foot_targets": self._home_feet,  # (4, 3) last foot targets, shoulder frames [m]
         }
         metrics = {f"reward/{k}": jnp.zeros(()) for k in self._config.reward.weights}
-        metrics.update(
-            ik_invalid_legs=jnp.zeros(()),
-            nan_reset=jnp.zeros(()),
-            forward_speed=jnp.zeros(()),
-            abs_roll=jnp.zeros(()),
-            abs_pitch=jnp.zeros(()),
-        )
+        metrics.update({k: jnp.zeros(()) for k in self.STEP_METRICS})
         obs = self._get_obs(data, info)
         return State(data, obs, jnp.zeros(()), jnp.zeros(()), metrics, info)
 
@@ -196,18 +255,32 @@ class QuadsonEnv(Env):
         sane = finite & (jnp.max(jnp.abs(data.qvel[:6])) < EXPLODED_SPEED)
 
         rpy, lin_vel, ang_vel = self._base_state(data)
-        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel)
+        height = data.qpos[2] - terrain.ground_height(self._field, data.qpos[:2])
+        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel, height)
         weights = cfg.reward.weights
         reward = sum(weights[k] * v for k, v in terms.items())
+        term = cfg.termination
+        below = self.base_clearance(data.qpos) < term.base_clearance_m
         fallen = (
-            (jnp.abs(rpy[0]) > cfg.termination.max_tilt_rad)
-            | (jnp.abs(rpy[1]) > cfg.termination.max_tilt_rad)
-            | (data.qpos[2] < cfg.termination.min_height_m)
+            (jnp.abs(rpy[0]) > term.max_tilt_rad)
+            | (jnp.abs(rpy[1]) > term.max_tilt_rad)
+            | (height < term.min_height_m)
         )
-        done = fallen | ~sane
+        if term.base_below_terrain:
+            fallen = fallen | below
+        off_field = ~terrain.on_field(self._field, data.qpos[:2], term.off_field_margin_m)
+        done = fallen | off_field | ~sane
+        err = jnp.square(jnp.stack([lin_vel[0], lin_vel[1], ang_vel[2]]) - info["command"])
         info["last_action"] = action
         info["last_ctrl"] = ctrl
         info["foot_targets"] = targets
+        if cfg.command_tracking and cfg.command_resample_s[1] > 0:  # a new command mid-episode
+            info["rng"], k_cmd = jax.random.split(info["rng"])
+            info["command_timer"] = info["command_timer"] - self._ctrl_dt
+            new_command, new_timer = self.sample_command(k_cmd)
+            now = info["command_timer"] <= 0.0
+            info["command"] = jnp.where(now, new_command, info["command"])
+            info["command_timer"] = jnp.where(now, new_timer, info["command_timer"])
         info["rng"] = jax.random.split(info["rng"])[0]  # fresh sensor noise every step
         obs = self._get_obs(data, info, (rpy, lin_vel, ang_vel))
         obs = jnp.where(sane, obs, 0.0)
@@ -221,6 +294,13 @@ class QuadsonEnv(Env):
             forward_speed=jnp.where(sane, lin_vel[0], 0.0),
             abs_roll=jnp.where(sane, jnp.abs(rpy[0]), 0.0),
             abs_pitch=jnp.where(sane, jnp.abs(rpy[1]), 0.0),
+            vx_sq_err=jnp.where(sane, err[0], 0.0),
+            vy_sq_err=jnp.where(sane, err[1], 0.0),
+            yaw_rate_sq_err=jnp.where(sane, err[2], 0.0),
+            base_height=jnp.where(sane, height, 0.0),
+            base_below_terrain=(sane & below).astype(jnp.float32),
+            fall=(sane & fallen).astype(jnp.float32),
+            off_field=(sane & off_field & ~fallen).astype(jnp.float32),
         )
         return state.replace(
             pipeline_state=data,
@@ -279,6 +359,16 @@ class QuadsonEnv(Env):
         info["rng"] = rng
         return data, info
 
+    def ground_height(self, xy):
+        """xy (..., 2) world [m] -> (...,) height of the ground there [m] (0 on the flat scene)."""
+        return terrain.ground_height(self._field, xy)
+
+    def base_clearance(self, qpos):
+        """qpos (nq,) -> lowest height of the base box's bottom face above the ground under it [m]
+        (15 points of the face; negative: inside a stone or below the plane)."""
+        points = qpos[:3] + quat_rotate(qpos[3:7], self._base_bottom)  # (15, 3) world
+        return jnp.min(points[:, 2] - terrain.ground_height(self._field, points[:, :2]))
+
     def _base_state(self, data):
         """-> rpy (3,) [rad], body-frame linear velocity (3,) [m/s], body-frame angular velocity (3,)."""
         quat = data.qpos[3:7]
@@ -307,16 +397,19 @@ class QuadsonEnv(Env):
             parts.append(info["command"])
         return jnp.concatenate(parts)
 
-    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel) -> dict:
+    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height) -> dict:
+        """height: the base origin above the ground under it [m]."""
         r = self._config.reward
         return {
             "forward_velocity_exp": rewards.forward_velocity_exp(lin_vel, r.forward_target, r.forward_sigma),
             "lateral_l2": rewards.lateral_l2(lin_vel, ang_vel),
             "vertical_l2": rewards.vertical_l2(lin_vel, ang_vel),
             "orientation_l2": rewards.orientation_l2(rpy, r.orientation_coeffs),
-            "height_l2": rewards.height_l2(data.qpos[2], r.height_target),
+            "height_l2": rewards.height_l2(height, r.height_target),
             "action_rate_l2": rewards.action_rate_l2(action, info["last_action"]),
             "torque_l2": rewards.torque_l2(data.actuator_force),
             "lin_vel_tracking_exp": rewards.lin_vel_tracking_exp(lin_vel, info["command"], r.tracking_sigma),
             "ang_vel_tracking_exp": rewards.ang_vel_tracking_exp(ang_vel, info["command"], r.tracking_sigma),
+            "lin_vel_z_l2": rewards.lin_vel_z_l2(lin_vel),
+            "ang_vel_xy_l2": rewards.ang_vel_xy_l2(ang_vel),
         }

@@ -33,6 +33,9 @@ def reward_config(command_tracking: bool = False) -> ml_collections.ConfigDict:
         # velocity-command tracking (off in the seed preset)
         "lin_vel_tracking_exp": 1.0 if command_tracking else 0.0,
         "ang_vel_tracking_exp": 0.5 if command_tracking else 0.0,
+        # the joystick recipe's stability terms (env_config(joystick=True)); off otherwise
+        "lin_vel_z_l2": 0.0,
+        "ang_vel_xy_l2": 0.0,
     }
     return ml_collections.ConfigDict(
         {
@@ -49,6 +52,47 @@ def reward_config(command_tracking: bool = False) -> ml_collections.ConfigDict:
     )
 
 
+# The joystick recipe (env_config(joystick=True)), as MuJoCo Playground's Go1 joystick and
+# legged_gym do it: commands resampled within the episode, a share of zero commands (standing still
+# is a trained case; the trot then steps in place), the command range of the evaluation sweep, the
+# seed's vz/wz pairing replaced by penalties on vz and on roll/pitch rates (a yaw command must not be
+# penalised), and an episode end when the base box dips into the ground.
+JOYSTICK_COMMAND_RANGE = {"vx": (-0.3, 0.5), "vy": (-0.2, 0.2), "yaw_rate": (-0.8, 0.8)}
+JOYSTICK_WEIGHTS = {"vertical_l2": 0.0, "lin_vel_z_l2": -2.0, "ang_vel_xy_l2": -0.05}
+
+# Env keys added after runs were already published, with the value that reproduces what those runs
+# did (dotted names). A config saved before a key existed gets it from `with_added_keys`, which the
+# environment applies to every config it is given.
+ENV_KEYS_ADDED = {
+    "base_terrain_contact": True,
+    "joint_limits": True,
+    "cone": "pyramidal",
+    "impl": "jax",
+    "command_resample_s": (0.0, 0.0),
+    "command_zero_prob": 0.0,
+    "termination.base_below_terrain": False,
+    "termination.base_clearance_m": 0.0,
+    "termination.off_field_margin_m": 0.3,
+    "reward.weights.lin_vel_z_l2": 0.0,
+    "reward.weights.ang_vel_xy_l2": 0.0,
+}
+
+
+def with_added_keys(cfg) -> ml_collections.ConfigDict:
+    """A copy of cfg (ConfigDict or dict) with every key of ENV_KEYS_ADDED it lacks set to the value
+    that reproduces the older run; keys it has are kept."""
+    data = cfg.to_dict() if hasattr(cfg, "to_dict") else dict(cfg)
+    for dotted, value in ENV_KEYS_ADDED.items():
+        *path, leaf = dotted.split(".")
+        node = data
+        for p in path:
+            node = node.setdefault(p, {})
+        node.setdefault(leaf, value)
+    out = ml_collections.ConfigDict(data)
+    out.lock()
+    return out
+
+
 def env_config(
     command_tracking: bool = False,
     randomize: bool = False,
@@ -57,6 +101,7 @@ def env_config(
     gait: str = "trot",
     base_terrain_contact: bool = True,
     joint_limits: bool = True,
+    joystick: bool = False,
 ) -> ml_collections.ConfigDict:
     """The environment config. Defaults reproduce seed 000's RL formulation.
 
@@ -66,7 +111,12 @@ def env_config(
     terrain: "flat" or "rough" (the heightfield scene).
     base_terrain_contact: False lets only the feet touch the ground (see the key's comment).
     joint_limits: False drops the motor joints' limit rows from the solver (see the key's comment).
+    joystick: the joystick recipe (implies command_tracking): commands resampled every 4-8 s, 10 %
+        zero commands, the range vx [-0.3, 0.5], vy [-0.2, 0.2], yaw rate [-0.8, 0.8], the vz and
+        roll/pitch-rate penalties instead of the seed's vz/wz pairing, and termination when the base
+        box goes below the ground under it.
     """
+    command_tracking = command_tracking or joystick
     if terrain not in ("flat", "rough"):
         raise ValueError(f"terrain must be 'flat' or 'rough', got {terrain!r}")
     if gait not in GAIT_NAMES:
@@ -103,14 +153,28 @@ def env_config(
             "gait_action_range": 0.5,  # +-50 % of the gait's step length and cycle frequency
             "command_tracking": command_tracking,
             "command_range": {  # per-episode uniform sampling when command_tracking
-                # measured: the trot's foot targets stay reachable up to |vx| = 0.48 m/s
-                "vx": (-0.3, 0.45),
-                "vy": (-0.2, 0.2),
-                "yaw_rate": (-0.5, 0.5),
+                # measured: the trot's foot targets stay reachable up to |vx| = 0.48 m/s; the joystick
+                # range's vx 0.5 clamps up to 4.9 % of leg-steps of a cycle (with |vy| 0.2, |yaw| 0.8)
+                **(
+                    JOYSTICK_COMMAND_RANGE
+                    if joystick
+                    else {"vx": (-0.3, 0.45), "vy": (-0.2, 0.2), "yaw_rate": (-0.5, 0.5)}
+                ),
             },
+            # a new command every U(lo, hi) seconds within the episode; (0, 0): one per episode
+            "command_resample_s": (4.0, 8.0) if joystick else (0.0, 0.0),
+            "command_zero_prob": 0.1 if joystick else 0.0,  # share of sampled commands set to zero
             "termination": {
                 "max_tilt_rad": math.radians(45.0),
-                "min_height_m": 0.1,
+                "min_height_m": 0.1,  # base origin above the ground under it
+                # With base_terrain_contact off the base box passes through stones unseen: end the
+                # episode when a point of its bottom face comes within base_clearance_m of the
+                # ground under it (always counted in metrics["base_below_terrain"]).
+                "base_below_terrain": joystick,
+                "base_clearance_m": 0.0,
+                # The stone field is 8 x 8 m with nothing beyond: an episode whose base comes this
+                # close to the edge ends as a truncation (metrics["off_field"]), not a fall.
+                "off_field_margin_m": 0.3,
             },
             "reward": reward_config(command_tracking),
             "noise": {  # Gaussian sensor noise std, used when randomize is on
@@ -131,5 +195,7 @@ def env_config(
             "push": {"interval_s": (2.0, 4.0), "speed_mps": (0.1, 0.4)},
         }
     )
+    if joystick:
+        cfg.reward.weights.update(JOYSTICK_WEIGHTS)
     cfg.lock()
     return cfg

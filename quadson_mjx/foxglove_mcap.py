@@ -380,7 +380,11 @@ class RolloutWriter:
                 "contacts": {leg: bool(touch[n] > 0) for n, leg in enumerate(C.LEGS)},
                 "foot_force_n": {leg: touch[n] for n, leg in enumerate(C.LEGS)},
                 "closure_residual_m": {leg: traj.closure_residual[k, i, n] for n, leg in enumerate(C.LEGS)},
+                "base_height_m": traj.base_height[k, i],
+                "base_below_terrain": bool(traj.base_below_terrain[k, i]),
                 "done": bool(traj.done[k, i]),
+                "fall": bool(traj.fall[k, i]),
+                "off_field": bool(traj.off_field[k, i]),
                 "nan_reset": bool(traj.nan_reset[k, i]),
                 **(extra or {}),
             }
@@ -451,7 +455,11 @@ _STEP_SCHEMA = {
         "contacts": {"type": "object", "properties": {leg: {"type": "boolean"} for leg in C.LEGS}},
         "foot_force_n": _PER_LEG_NUM,
         "closure_residual_m": _PER_LEG_NUM,
+        "base_height_m": _NUM,
+        "base_below_terrain": {"type": "boolean"},
         "done": {"type": "boolean"},
+        "fall": {"type": "boolean"},
+        "off_field": {"type": "boolean"},
         "nan_reset": {"type": "boolean"},
     },
 }
@@ -474,17 +482,19 @@ def record(
     metadata: dict | None = None,
     overwrite: bool = False,
     viz_envs: int | None = 16,
+    randomize: bool = False,
 ) -> dict:
     """Runs `quadson_mjx.rollout.run` and writes it to `path`. Flushes after the static scene, at
         every step where an episode ends and after every segment. The first `viz_envs` environments (None:
-    all) are drawn; /rollout/step has every one. -> {"steps", "falls", "nan_resets"}."""
+    all) are drawn; /rollout/step has every one. command: None (sampled), (3,) or one per env (B, 3).
+    -> {"steps", "falls", "off_field", "nan_resets"}."""
     from quadson_mjx import rollout as qrollout
     from quadson_mjx.config import to_json
     from quadson_mjx.model import model_xml_text
     from quadson_mjx.training import versions
 
     ctrl_dt = env.ctrl_dt
-    falls = nan_resets = 0
+    falls = nan_resets = off_field = 0
     with RolloutWriter(path, env.mj_model, n_envs, ctrl_dt, overwrite=overwrite, viz_envs=viz_envs) as w:
         info = {
             "controller": controller.name,
@@ -493,7 +503,8 @@ def record(
             "n_steps": n_steps,
             "ctrl_dt_s": ctrl_dt,
             "terrain": env.config.terrain,
-            "command": "sampled per env" if command is None else json.dumps([float(c) for c in command]),
+            "command": "sampled per env" if command is None else json.dumps(np.asarray(command).tolist()),
+            "randomize": randomize,
             **(metadata or {}),
         }
         w.write_metadata("rollout", info)
@@ -502,7 +513,8 @@ def record(
         w.attach("quadson.xml", model_xml_text(env.config.terrain).encode(), "application/xml")
         w.log(0, "info", f"start: {controller.name}, {n_envs} env(s), {n_steps} steps of {ctrl_dt} s")
         w.write_scene(0)
-        for start, traj in qrollout.run(env, controller, rng, n_envs, n_steps, segment_steps, command):
+        runs = qrollout.run(env, controller, rng, n_envs, n_steps, segment_steps, command, randomize)
+        for start, traj in runs:
             for k in range(traj.done.shape[0]):
                 t_ns = step_time_ns(start + k, ctrl_dt)
                 w.write_step(t_ns, traj, k)
@@ -516,6 +528,9 @@ def record(
                             "error",
                             f"env{i}: non-finite physics at episode step {traj.episode_step[k, i]}; reset",
                         )
+                    elif traj.off_field[k, i]:
+                        off_field += 1
+                        w.log(t_ns, "info", f"env{i}: reached the field's edge; reset (not a fall)")
                     else:
                         falls += 1
                         w.log(
@@ -530,9 +545,9 @@ def record(
         w.log(
             step_time_ns(n_steps - 1, ctrl_dt),
             "info",
-            f"end: {falls} fall(s), {nan_resets} non-finite reset(s)",
+            f"end: {falls} fall(s), {off_field} at the field's edge, {nan_resets} non-finite reset(s)",
         )
-    return {"steps": n_steps, "falls": falls, "nan_resets": nan_resets}
+    return {"steps": n_steps, "falls": falls, "off_field": off_field, "nan_resets": nan_resets}
 
 
 def layout_json(env: int = 0) -> str:

@@ -9,6 +9,13 @@ episodes. Only each environment's first episode counts (up to its first fall, wh
   * seed 003 (Tables II and III): per episode the mean speed (world displacement along the start
     heading / time) [m/s] or mean yaw rate (unwrapped yaw change / time) [rad/s] against the command,
     and roll and pitch oscillation as max - min [rad]; then mean and standard deviation over episodes.
+  * command tracking (the joystick policy's targets): after the first `settle_s` (1 s: the gait's
+    0.5 s ramp from standing, and the start), the RMS error of vx, vy [m/s] (base frame) and yaw rate
+    [rad/s] against each environment's command, pooled over every step of every episode, raw and
+    averaged over one gait cycle (0.8 s moving mean: the trot's within-stride sway removed); falls
+    (an episode that reached the stone field's edge is not a fall); the time the base box spent
+    below the ground under it. A trial whose environments carry different commands (the command
+    sweep) is also broken down per commanded vx, vy and yaw rate.
 """
 
 from __future__ import annotations
@@ -37,15 +44,35 @@ class Trial:
     base: dict[str, np.ndarray] = field(default_factory=dict)
     done: np.ndarray | None = None
     complete: bool = True
+    commands: np.ndarray | None = None  # (n_envs, 3) each env's command at its first step
+    fall: np.ndarray | None = None  # (n_envs, n_steps) bool; older files: done
+    off_field: np.ndarray | None = None  # (n_envs, n_steps) bool
+    below: np.ndarray | None = None  # (n_envs, n_steps) bool: base box below the ground
+    randomized: bool = False
+
+    def __post_init__(self):
+        if self.commands is None and self.done is not None:
+            self.commands = np.tile(np.asarray(self.command, float), (self.done.shape[0], 1))
+        if self.fall is None and self.done is not None:
+            self.fall = self.done
+        for name in ("off_field", "below"):
+            if getattr(self, name) is None and self.done is not None:
+                setattr(self, name, np.zeros_like(self.done))
 
     @property
     def task(self) -> str:
+        if self.commands is not None and len(np.unique(self.commands, axis=0)) > 1:
+            return "sweep"
         vx, vy, wz = self.command
         return "turn" if abs(wz) > 0 and math.hypot(vx, vy) < 1e-9 else "forward"
 
     @property
+    def ground(self) -> str:
+        return f"{self.terrain}, randomized" if self.randomized else self.terrain
+
+    @property
     def label(self) -> str:
-        return f"{self.controller} / {self.terrain} / {self.task}"
+        return f"{self.controller} / {self.ground} / {self.task}"
 
 
 def load_trial(path: str | Path) -> Trial:
@@ -65,8 +92,14 @@ def load_trial(path: str | Path) -> Trial:
     envs = sorted(steps)
     base = {k: np.array([[_num(s["base"][k]) for s in steps[e][:n]] for e in envs]) for k in BASE_KEYS}
     done = np.array([[bool(s["done"]) for s in steps[e][:n]] for e in envs])
-    first = steps[envs[0]][0]["command"]
-    command = (float(first["vx"]), float(first["vy"]), float(first["yaw_rate"]))
+
+    def flags(key):  # None for files written before the key existed
+        if key not in steps[envs[0]][0]:
+            return None
+        return np.array([[bool(s[key]) for s in steps[e][:n]] for e in envs])
+
+    commands = np.array([[_num(steps[e][0]["command"][k]) for k in ("vx", "vy", "yaw_rate")] for e in envs])
+    command = tuple(float(c) for c in commands[0])
     controller = rollout.get("controller", "?")
     if controller == "policy" and rollout.get("run_dir"):  # several policies: name each by its run
         controller = f"policy ({Path(rollout['run_dir']).name})"
@@ -79,6 +112,11 @@ def load_trial(path: str | Path) -> Trial:
         base=base,
         done=done,
         complete=report.complete,
+        commands=commands,
+        fall=flags("fall"),
+        off_field=flags("off_field"),
+        below=flags("base_below_terrain"),
+        randomized=str(rollout.get("randomize", "False")) == "True",
     )
 
 
@@ -116,7 +154,7 @@ def seed000_stats(trial: Trial, window_s: float = 3.0) -> dict:
     for k in ("vx", "vz", "roll", "pitch"):
         vals = np.concatenate([trial.base[k][i, : lengths[i]] for i in range(len(lengths))])
         out[k] = (float(np.nanmean(vals)), float(np.nanstd(vals)))
-    fell = trial.done.any(axis=1) & (first_episode_lengths(trial.done) <= n_win)
+    fell = trial.fall.any(axis=1) & (first_episode_lengths(trial.done) <= n_win)
     out["falls"] = int(np.sum(fell))
     out["episodes"] = len(lengths)
     return out
@@ -141,7 +179,7 @@ def seed003_stats(trial: Trial) -> dict:
     def ms(x):
         return (float(np.mean(x)), float(np.std(x))) if x else (float("nan"), float("nan"))
 
-    fell = trial.done[np.arange(len(lengths)), lengths - 1]
+    fell = trial.fall[np.arange(len(lengths)), lengths - 1]
     return {
         "speed": ms(speed),
         "yaw_rate": ms(yaw_rate),
@@ -151,6 +189,67 @@ def seed003_stats(trial: Trial) -> dict:
         "falls": int(np.sum(fell)),
         "mean_episode_s": float(np.mean(lengths) * trial.ctrl_dt),
     }
+
+
+TRACK_KEYS = (("vx", 0), ("vy", 1), ("wz", 2))  # base velocity key, command index
+
+
+def _moving_mean(x: np.ndarray, n: int) -> np.ndarray:
+    """Mean over the last n samples (fewer at the start) of a 1-D series."""
+    c = np.cumsum(np.insert(x, 0, 0.0))
+    k = np.arange(1, len(x) + 1)
+    lo = np.maximum(k - n, 0)
+    return (c[k] - c[lo]) / (k - lo)
+
+
+def tracking_errors(trial: Trial, settle_s: float = 1.0, avg_s: float = 0.8, envs=None) -> dict:
+    """Command-tracking errors of each env's first episode after settle_s: -> {"vx", "vy", "wz"}:
+    (raw errors, errors of the avg_s moving mean) as 1-D arrays pooled over envs; "episodes";
+    "falls"; "off_field"; "below_s" (time with the base box below the ground [s], summed)."""
+    lengths = first_episode_lengths(trial.done)
+    envs = range(len(lengths)) if envs is None else envs
+    skip = int(round(settle_s / trial.ctrl_dt))
+    n_avg = max(1, int(round(avg_s / trial.ctrl_dt)))
+    out = {k: ([], []) for k, _ in TRACK_KEYS}
+    falls = off = 0
+    below = 0.0
+    for i in envs:
+        n = lengths[i]
+        falls += int(trial.fall[i, n - 1])
+        off += int(trial.off_field[i, n - 1])
+        below += float(np.sum(trial.below[i, :n])) * trial.ctrl_dt
+        for k, c in TRACK_KEYS:
+            v = trial.base[k][i, :n]
+            out[k][0].append(v[skip:] - trial.commands[i, c])
+            out[k][1].append(_moving_mean(v, n_avg)[skip:] - trial.commands[i, c])
+    res = {k: tuple(np.concatenate(e) if e else np.zeros(0) for e in pair) for k, pair in out.items()}
+    return {**res, "episodes": len(envs), "falls": falls, "off_field": off, "below_s": below}
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.nanmean(np.square(e)))) if e.size else float("nan")
+
+
+def tracking_stats(trial: Trial, settle_s: float = 1.0, avg_s: float = 0.8, envs=None) -> dict:
+    """RMS tracking errors (raw and cycle-averaged) per axis, falls, time below ground; see
+    tracking_errors."""
+    e = tracking_errors(trial, settle_s, avg_s, envs)
+    out = {k: _rms(e[k][0]) for k, _ in TRACK_KEYS}
+    out.update({f"{k}_avg": _rms(e[k][1]) for k, _ in TRACK_KEYS})
+    out.update({k: e[k] for k in ("episodes", "falls", "off_field", "below_s")})
+    return out
+
+
+def tracking_by_command(trial: Trial, axis: int, settle_s: float = 1.0, avg_s: float = 0.8) -> list:
+    """[(commanded value on axis (0 vx, 1 vy, 2 yaw rate), tracking_stats over the envs with it)]."""
+    values = np.unique(np.round(trial.commands[:, axis], 6))
+    return [
+        (
+            float(v),
+            tracking_stats(trial, settle_s, avg_s, np.flatnonzero(np.isclose(trial.commands[:, axis], v))),
+        )
+        for v in values
+    ]
 
 
 def _pm(v, digits=3) -> str:
@@ -165,9 +264,46 @@ def _pm_deg(v) -> str:
     return f"{m:.3f} ± {s:.3f} ({math.degrees(m):.1f}° ± {math.degrees(s):.1f}°)"
 
 
-def markdown(trials: list[Trial], window_s: float = 3.0) -> str:
-    """The two comparison tables as markdown."""
-    trials = sorted(trials, key=lambda t: (t.task, t.terrain, t.controller))
+def _tracking_row(s: dict) -> str:
+    return (
+        f"{s['vx']:.3f} / {s['vy']:.3f} / {s['wz']:.3f} | {s['vx_avg']:.3f} / {s['vy_avg']:.3f} / "
+        f"{s['wz_avg']:.3f} | {s['falls']}/{s['episodes']} | {s['off_field']} | {s['below_s']:.2f} |"
+    )
+
+
+def tracking_markdown(trials: list[Trial], settle_s: float = 1.0, avg_s: float = 0.8) -> list[str]:
+    head = (
+        "| controller | ground | task | RMS error vx / vy [m/s] / yaw rate [rad/s] | same, "
+        f"{avg_s:g} s mean | falls | at field edge | base in ground [s] |"
+    )
+    lines = [
+        "",
+        f"## Command tracking: each episode after its first {settle_s:g} s, pooled over episodes",
+        "",
+        head,
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for t in trials:
+        lines.append(
+            f"| {t.controller} | {t.ground} | {t.task} | " + _tracking_row(tracking_stats(t, settle_s, avg_s))
+        )
+    for t in (t for t in trials if t.task == "sweep"):
+        for axis, name in enumerate(("vx [m/s]", "vy [m/s]", "yaw rate [rad/s]")):
+            lines += [
+                "",
+                f"### {t.label}: per commanded {name}",
+                "",
+                f"| commanded {name} | RMS error vx / vy / yaw rate | same, {avg_s:g} s mean | falls | at field edge | base in ground [s] |",
+                "|---|---|---|---|---|---|",
+            ]
+            for v, s in tracking_by_command(t, axis, settle_s, avg_s):
+                lines.append(f"| {v:g} | " + _tracking_row(s))
+    return lines
+
+
+def markdown(trials: list[Trial], window_s: float = 3.0, settle_s: float = 1.0, avg_s: float = 0.8) -> str:
+    """The comparison tables as markdown."""
+    trials = sorted(trials, key=lambda t: (t.task, t.terrain, t.randomized, t.controller))
     lines = [
         f"## Seed 000 metrics: first {window_s:g} s of each episode (mean ± std over all steps)",
         "",
@@ -178,7 +314,7 @@ def markdown(trials: list[Trial], window_s: float = 3.0) -> str:
         s = seed000_stats(t, window_s)
         cmd = ", ".join(f"{c:g}" for c in t.command)
         lines.append(
-            f"| {t.controller} | {t.terrain} | {t.task} | ({cmd}) | {_pm(s['vx'])} | {_pm(s['vz'])} | "
+            f"| {t.controller} | {t.ground} | {t.task} | ({cmd}) | {_pm(s['vx'])} | {_pm(s['vz'])} | "
             f"{_pm(s['roll'])} | {_pm(s['pitch'])} | {s['falls']}/{s['episodes']} |"
         )
     lines += [
@@ -192,10 +328,11 @@ def markdown(trials: list[Trial], window_s: float = 3.0) -> str:
         s = seed003_stats(t)
         target = f"{t.command[2]:g} rad/s" if t.task == "turn" else f"{t.command[0]:g} m/s"
         lines.append(
-            f"| {t.controller} | {t.terrain} | {t.task} | {target} | {_pm(s['speed'])} | {_pm(s['yaw_rate'])} | "
+            f"| {t.controller} | {t.ground} | {t.task} | {target} | {_pm(s['speed'])} | {_pm(s['yaw_rate'])} | "
             f"{_pm_deg(s['d_roll'])} | {_pm_deg(s['d_pitch'])} | {s['falls']}/{s['episodes']} | "
             f"{s['mean_episode_s']:.2f} |"
         )
+    lines += tracking_markdown(trials, settle_s, avg_s)
     incomplete = [t.path for t in trials if not t.complete]
     if incomplete:
         lines += ["", f"Truncated files (read up to their last flush): {', '.join(incomplete)}"]
@@ -211,8 +348,18 @@ def summary_json(trials: list[Trial], window_s: float = 3.0) -> str:
                 "terrain": t.terrain,
                 "task": t.task,
                 "command": t.command,
+                "randomized": t.randomized,
                 "seed000": seed000_stats(t, window_s),
                 "seed003": seed003_stats(t),
+                "tracking": tracking_stats(t),
+                **(
+                    {
+                        "tracking_by_" + n: tracking_by_command(t, a)
+                        for a, n in enumerate(("vx", "vy", "yaw_rate"))
+                    }
+                    if t.task == "sweep"
+                    else {}
+                ),
             }
             for t in trials
         ],

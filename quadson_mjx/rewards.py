@@ -69,3 +69,13 @@ def lin_vel_tracking_exp(lin_vel, command, sigma):
 def ang_vel_tracking_exp(ang_vel, command, sigma):
     """Yaw-rate command tracking -> (...,)."""
     return tracking_exp(jnp.square(ang_vel[..., 2] - command[..., 2]), sigma)
+
+
+def lin_vel_z_l2(lin_vel):
+    """vz^2 [m^2/s^2] (the joystick recipe's vertical penalty, MuJoCo Playground Go1) -> (...,)."""
+    return jnp.square(lin_vel[..., 2])
+
+
+def ang_vel_xy_l2(ang_vel):
+    """wx^2 + wy^2 [rad^2/s^2]: roll and pitch rates, leaving the commanded yaw rate free -> (...,)."""
+    return jnp.sum(jnp.square(ang_vel[..., :2]), axis=-1)

@@ -5,8 +5,13 @@ and scans T control steps in one jitted function, recording per-step arrays `[T,
 host then writes (quadson_mjx.foxglove_mcap) or summarises (quadson_mjx.report). A long rollout runs
 as consecutive segments of the same compiled scan, so a writer can flush between them.
 
-An environment whose episode ends (fall or non-finite physics) restarts from its first state with
-the same command and a fresh controller state; `done` marks the step that ended the episode.
+An environment whose episode ends (fall, the stone field's edge, or non-finite physics) restarts
+from its first state with the same command and a fresh controller state; `done` marks the step that
+ended the episode, `fall` and `off_field` say why. A given command (3,) or one per environment (B, 3)
+holds for the whole trial (the env's mid-episode resampling is switched off); without one the env
+samples (and resamples) as in training. With `randomize=True` and an env config that randomizes,
+every environment gets its own randomized model (friction, masses, servo strength, centre of mass:
+quadson_mjx.randomize), as brax's training wrapper does it.
 
 Controllers (`Controller(name, init, act)`, act: (carry, env_state, key) -> (carry, action)):
   * `gait_only`: the gait open loop (zero action).
@@ -17,6 +22,7 @@ Controllers (`Controller(name, init, act)`, act: (carry, env_state, key) -> (car
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
 
@@ -158,6 +164,10 @@ class Trajectory(NamedTuple):
     reward_terms: dict  # name -> (T, B), weighted as the env sums them
     done: jax.Array  # (T, B) bool: this step ended the episode (then the env restarts)
     nan_reset: jax.Array  # (T, B) bool: it ended because the physics went non-finite
+    fall: jax.Array  # (T, B) bool: it ended by tilt, height or the base box in the ground
+    off_field: jax.Array  # (T, B) bool: it ended at the stone field's edge (not a fall)
+    base_height: jax.Array  # (T, B) base origin above the ground under it [m]
+    base_below_terrain: jax.Array  # (T, B) bool: the base box's bottom face is below the ground
 
 
 def _set_command(env, state, command):
@@ -165,6 +175,7 @@ def _set_command(env, state, command):
         return state
     info = dict(state.info)
     info["command"] = jnp.broadcast_to(jnp.asarray(command, jnp.float32), info["command"].shape)
+    info["command_timer"] = jnp.full_like(info["command_timer"], jnp.inf)  # fixed for the trial
     obs = state.obs
     if env.config.command_tracking:  # the command is the observation's tail
         obs = obs.at[..., -3:].set(info["command"])
@@ -172,7 +183,9 @@ def _set_command(env, state, command):
 
 
 def init_carry(env, controller: Controller, rng, n_envs: int, command=None) -> Carry:
-    """First states of n_envs environments (command (3,) overrides the sampled one)."""
+    """First states of n_envs environments (command (3,) or (n_envs, 3) overrides the sampled one)."""
+    if command is not None and np.ndim(command) == 2 and np.shape(command)[0] != n_envs:
+        raise ValueError(f"{np.shape(command)[0]} commands for {n_envs} environments: give one per env")
     k_reset, k_run = jax.random.split(rng)
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(k_reset, n_envs))
     state = _set_command(env, state, command)
@@ -180,13 +193,31 @@ def init_carry(env, controller: Controller, rng, n_envs: int, command=None) -> C
     return Carry(state, state, ctrl, jnp.zeros(n_envs, jnp.int32), k_run)
 
 
-def make_rollout(env, controller: Controller, n_steps: int):
-    """-> jitted rollout(carry) -> (carry, Trajectory [n_steps, B]) of consecutive control steps."""
+def randomized_step(env, n_envs: int, rng):
+    """-> step(states [B], actions [B]) with one randomized model per environment (the env config's
+    `randomization` ranges; quadson_mjx.randomize), like brax's DomainRandomizationVmapWrapper."""
+    from quadson_mjx.randomize import randomize
+
+    sys_v, in_axes = randomize(
+        env.sys, jax.random.split(rng, n_envs), env.config.randomization, env.base_body
+    )
+
+    def one(sys, state, action):
+        e = copy.copy(env)  # a shallow copy carrying this environment's model; env stays untouched
+        e.sys = sys
+        return e.step(state, action)
+
+    return lambda states, actions: jax.vmap(one, in_axes=(in_axes, 0, 0))(sys_v, states, actions)
+
+
+def make_rollout(env, controller: Controller, n_steps: int, step_b=None):
+    """-> jitted rollout(carry) -> (carry, Trajectory [n_steps, B]) of consecutive control steps.
+    step_b: batched env step (default: vmap of env.step on the nominal model; randomized_step)."""
     ids = qmodel.model_ids(env.mj_model)
     foot_geoms = jnp.asarray(foot_geom_ids(env.mj_model))
     gravity = jnp.asarray(env.mj_model.opt.gravity, jnp.float32)
     act_b = jax.vmap(controller.act)
-    step_b = jax.vmap(env.step)
+    step_b = jax.vmap(env.step) if step_b is None else step_b
     init_b = jax.vmap(lambda _: controller.init())
 
     def one(carry: Carry, _):
@@ -221,6 +252,10 @@ def make_rollout(env, controller: Controller, n_steps: int):
             reward_terms={k[len("reward/") :]: v for k, v in nxt.metrics.items() if k.startswith("reward/")},
             done=done,
             nan_reset=nxt.metrics["nan_reset"] > 0,
+            fall=nxt.metrics["fall"] > 0,
+            off_field=nxt.metrics["off_field"] > 0,
+            base_height=nxt.metrics["base_height"],
+            base_below_terrain=nxt.metrics["base_below_terrain"] > 0,
         )
 
         def restart(first, current):
@@ -244,13 +279,24 @@ def to_host(traj: Trajectory) -> Trajectory:
 
 
 def run(
-    env, controller: Controller, rng, n_envs: int, n_steps: int, segment_steps: int = 250, command=None
+    env,
+    controller: Controller,
+    rng,
+    n_envs: int,
+    n_steps: int,
+    segment_steps: int = 250,
+    command=None,
+    randomize: bool = False,
 ) -> Iterator[tuple[int, Trajectory]]:
     """Yields (first step index, host Trajectory [t, B]) segment by segment until n_steps are done.
-    Every segment but the last has segment_steps steps (one compile for all of them)."""
+    Every segment but the last has segment_steps steps (one compile for all of them). randomize: one
+    randomized model per environment (needs an env config with randomize on)."""
+    if randomize and not env.config.randomize:
+        raise ValueError("randomize=True needs an env config with randomize on (--env.randomize=true)")
     carry = init_carry(env, controller, rng, n_envs, command)
     seg = max(1, min(segment_steps, n_steps))
-    full = make_rollout(env, controller, seg)
+    step_b = randomized_step(env, n_envs, jax.random.fold_in(rng, 7)) if randomize else None
+    full = make_rollout(env, controller, seg, step_b)
     done_steps = 0
     while done_steps < n_steps:
         carry, traj = full(carry)

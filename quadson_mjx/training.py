@@ -489,7 +489,7 @@ def train(
         record["progress/xla_cache_hits"] = compilations.cache_hits
         length = record.get("eval/avg_episode_length")
         if length:  # brax sums per-step metrics over an episode; per-step means are what one reads
-            for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset"):
+            for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset", "vx_sq_err", "vy_sq_err", "yaw_rate_sq_err", "base_height", "base_below_terrain", "fall", "off_field"):  # fmt: skip
                 if f"eval/episode_{name}" in record:
                     record[f"eval/mean_{name}"] = record[f"eval/episode_{name}"] / length
         log.log("/train/metrics", _nest(record), time.time_ns())

@@ -1,5 +1,6 @@
 """Wrapping the environment for brax training: vmap (or domain randomization), episode limit with
-truncation, and an auto-reset that resamples each episode's command, latency and push timer.
+truncation, and an auto-reset that resamples each episode's command, latency and push timer. An
+episode the environment ends at the stone field's edge (`metrics["off_field"]`) is a truncation too.
 
 brax's own AutoResetWrapper restarts a finished episode from the batch's first state, which would
 give an environment the same velocity command forever. Ours restarts from the first physics state
@@ -31,6 +32,11 @@ class ResamplingAutoReset(Wrapper):
         state = state.replace(done=jnp.zeros_like(state.done))
         state = self.env.step(state, action)
         done = state.done.astype(bool)
+        if "truncation" in state.info and "off_field" in state.metrics:
+            # the edge of the stone field ends an episode that did not fail: PPO bootstraps its value
+            info = dict(state.info)
+            info["truncation"] = jnp.where(state.metrics["off_field"] > 0, 1.0, info["truncation"])
+            state = state.replace(info=info)
 
         def where_done(first, current):
             mask = jnp.reshape(done, done.shape + (1,) * (current.ndim - done.ndim))

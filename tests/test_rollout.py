@@ -45,7 +45,7 @@ def rollout_file(env, tmp_path_factory):
         segment_steps=SEGMENT,
         metadata={"seed": 0},
     )
-    assert summary == {"steps": N_STEPS, "falls": 0, "nan_resets": 0}
+    assert summary == {"steps": N_STEPS, "falls": 0, "off_field": 0, "nan_resets": 0}
     return path
 
 
@@ -365,6 +365,8 @@ def test_writer_draws_only_viz_envs_but_logs_every_env(env, tmp_path):
         qpos=qpos, qvel=z(m.nv), xpos=z(m.nbody, 3), xquat=xquat, rpy=z(3), lin_vel=z(3), ang_vel=z(3),
         imu_acc=z(3), foot_force=z(4), actuator_force=z(m.nu), closure_residual=z(4), reward=z(),
         reward_terms={"orientation_l2": z()}, done=np.zeros((T, B), bool), nan_reset=np.zeros((T, B), bool),
+        fall=np.zeros((T, B), bool), off_field=np.zeros((T, B), bool), base_height=z(),
+        base_below_terrain=np.zeros((T, B), bool),
     )  # fmt: skip
     traj.obs[0, 2, 5] = np.nan  # JSON gets null, not NaN
     path = tmp_path / "viz.mcap"
@@ -387,3 +389,61 @@ def test_writer_draws_only_viz_envs_but_logs_every_env(env, tmp_path):
     steps = [s for _, s in _topic(msgs, "/rollout/step")]
     assert [s["env"] for s in steps] == [0, 1, 2, 0, 1, 2]
     assert steps[2]["observation"][5] is None and steps[2]["observation"][4] == 0.0
+
+
+def test_tracking_stats_by_hand():
+    # 2 envs x 100 steps (2 s) with their own commands; settle 1 s skips the first 50 steps.
+    # env 0: command (0.2, 0, 0.5), vx = 0.2 + 0.1 (+1, -1, ...) alternating: raw RMS 0.1, its
+    # 0.8 s (40-step, even) moving mean is exact: 0; wz = 0.4: error -0.1. env 1: command (0, 0.1, 0),
+    # vy = 0, falls at step 80 (its errors: steps 51..80, 30 steps), base in the ground 3 steps.
+    from quadson_mjx.report import Trial, tracking_by_command, tracking_stats
+
+    T = 100
+    base = {
+        k: np.zeros((2, T))
+        for k in ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
+    }
+    base["vx"][0] = 0.2 + 0.1 * (-1.0) ** np.arange(T)
+    base["wz"][0] = 0.4
+    done = np.zeros((2, T), bool)
+    done[1, 79] = True
+    below = np.zeros((2, T), bool)
+    below[1, 70:73] = True
+    commands = np.array([[0.2, 0.0, 0.5], [0.0, 0.1, 0.0]])
+    trial = Trial("x", "policy", "rough", tuple(commands[0]), CTRL_DT, base, done, commands=commands,
+                  fall=done.copy(), off_field=np.zeros_like(done), below=below)  # fmt: skip
+    assert trial.task == "sweep"
+    s = tracking_stats(trial, settle_s=1.0, avg_s=0.8)
+    n0, n1 = 50, 30  # steps counted per env
+    np.testing.assert_allclose(s["vx"], math.sqrt(n0 * 0.01 / (n0 + n1)), rtol=1e-9)
+    np.testing.assert_allclose(s["vx_avg"], 0.0, atol=1e-9)
+    np.testing.assert_allclose(s["vy"], math.sqrt(n1 * 0.01 / (n0 + n1)), rtol=1e-9)
+    np.testing.assert_allclose(s["wz"], math.sqrt(n0 * 0.01 / (n0 + n1)), rtol=1e-9)
+    assert s["falls"] == 1 and s["episodes"] == 2 and s["off_field"] == 0
+    assert s["below_s"] == pytest.approx(3 * CTRL_DT)
+    by_vy = tracking_by_command(trial, axis=1)
+    assert [v for v, _ in by_vy] == [0.0, 0.1]
+    assert by_vy[1][1]["vy"] == pytest.approx(0.1) and by_vy[1][1]["falls"] == 1
+    assert by_vy[0][1]["vx"] == pytest.approx(0.1) and by_vy[0][1]["falls"] == 0
+
+
+def test_randomized_step_and_per_env_commands():
+    # --suite --randomize and the sweep: each env keeps its own command (the env's resampling is off
+    # for a given command, its obs tail shows it), and every env steps on its own randomized model.
+    # Reference for the model: the same states stepped on the nominal model differ from it.
+    env = QuadsonEnv(env_config(joystick=True, randomize=True))
+    commands = np.array([[0.3, 0.0, 0.0], [0.0, 0.1, -0.4]], np.float32)
+    carry = R.init_carry(env, R.gait_only(env), jax.random.PRNGKey(0), 2, commands)
+    np.testing.assert_array_equal(carry.state.info["command"], commands)
+    np.testing.assert_array_equal(carry.state.obs[:, -3:], commands)
+    assert np.all(np.isinf(np.asarray(carry.state.info["command_timer"])))
+    both = jax.jit(
+        lambda s, a: (R.randomized_step(env, 2, jax.random.PRNGKey(5))(s, a), jax.vmap(env.step)(s, a))
+    )
+    randomized, nominal = both(carry.state, jnp.zeros((2, 12)))
+    q_r, q_n = np.asarray(randomized.pipeline_state.qpos), np.asarray(nominal.pipeline_state.qpos)
+    assert np.all(np.isfinite(q_r)) and not np.allclose(q_r, q_n, atol=1e-7)
+    with pytest.raises(ValueError, match="3 commands for 2 environments"):
+        R.init_carry(env, R.gait_only(env), jax.random.PRNGKey(0), 2, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="randomize on"):
+        next(R.run(QuadsonEnv(env_config()), R.gait_only(env), jax.random.PRNGKey(0), 2, 4, randomize=True))

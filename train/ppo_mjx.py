@@ -6,7 +6,7 @@
     python train/ppo_mjx.py --resume runs/20261121-101500
 
 Env options: --env-preset seed|command|robust (seed 000's formulation; + velocity commands;
-+ commands, domain randomization, pushes). Any config key can be overridden with --env.KEY=VALUE or
+the joystick recipe with domain randomization and pushes). Any config key can be overridden with --env.KEY=VALUE or
 --ppo.KEY=VALUE; an unknown key is an error naming it.
 """
 
@@ -34,7 +34,9 @@ FAST_PHYSICS = {"base_terrain_contact": False, "joint_limits": False}
 ENV_PRESETS = {
     "seed": {**FAST_PHYSICS},
     "command": {**FAST_PHYSICS, "command_tracking": True},
-    "robust": {**FAST_PHYSICS, "command_tracking": True, "randomize": True, "pushes": True},
+    # the joystick recipe (commands resampled every 4-8 s, 10 % zero, the sweep's range, base-in-ground
+    # termination) with randomization and pushes
+    "robust": {**FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
 }
 
 
