@@ -158,6 +158,9 @@ class Trajectory(NamedTuple):
     reward_terms: dict  # name -> (T, B), weighted as the env sums them
     done: jax.Array  # (T, B) bool: this step ended the episode (then the env restarts)
     nan_reset: jax.Array  # (T, B) bool: it ended because the physics went non-finite
+    # (T, B, 12) the position targets the step sent to the motors [rad], LEGS x MOTORS (the
+    # reference a deployment loop's output is checked against); None where not recorded
+    motor_targets: jax.Array | None = None
 
 
 def _set_command(env, state, command):
@@ -172,7 +175,7 @@ def _set_command(env, state, command):
 
 
 def init_carry(env, controller: Controller, rng, n_envs: int, command=None) -> Carry:
-    """First states of n_envs environments (command (3,) overrides the sampled one)."""
+    """First states of n_envs environments (command (3,) or (n_envs, 3) overrides the sampled one)."""
     k_reset, k_run = jax.random.split(rng)
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(k_reset, n_envs))
     state = _set_command(env, state, command)
@@ -183,6 +186,7 @@ def init_carry(env, controller: Controller, rng, n_envs: int, command=None) -> C
 def make_rollout(env, controller: Controller, n_steps: int):
     """-> jitted rollout(carry) -> (carry, Trajectory [n_steps, B]) of consecutive control steps."""
     ids = qmodel.model_ids(env.mj_model)
+    motor_actuator = jnp.asarray(ids.motor_actuator)
     foot_geoms = jnp.asarray(foot_geom_ids(env.mj_model))
     gravity = jnp.asarray(env.mj_model.opt.gravity, jnp.float32)
     act_b = jax.vmap(controller.act)
@@ -221,6 +225,7 @@ def make_rollout(env, controller: Controller, n_steps: int):
             reward_terms={k[len("reward/") :]: v for k, v in nxt.metrics.items() if k.startswith("reward/")},
             done=done,
             nan_reset=nxt.metrics["nan_reset"] > 0,
+            motor_targets=nxt.info["last_ctrl"][:, motor_actuator],
         )
 
         def restart(first, current):
