@@ -52,7 +52,7 @@ def quat_to_rpy(q) -> np.ndarray:
     q = np.asarray(q, np.float64)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    pitch = np.arcsin(np.minimum(np.maximum(2 * (w * y - z * x), -1.0), 1.0))
     yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return np.stack([roll, pitch, yaw], axis=-1)
 
@@ -178,7 +178,7 @@ class DeployLoop:
         """env._motor_targets at the current clock: -> (motor targets (12,), valid (4,), foot
         targets (4, 3), the cycle time [s] this step runs at)."""
         c = self.config
-        action = np.clip(np.asarray(action, np.float64), -1.0, 1.0)
+        action = np.minimum(np.maximum(np.asarray(action, np.float64), -1.0), 1.0)
         g, command = c.gait, np.asarray(command, np.float64)
         if c.gait_action:  # the policy scales step length and cycle frequency
             length_scale = 1.0 + c.gait_action_range * action[12]

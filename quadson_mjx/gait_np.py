@@ -23,6 +23,11 @@ _UP = np.array([0.0, 1.0, 0.0])
 _TINY = np.finfo(np.float64).tiny
 
 
+def _clip(x, lo, hi):
+    """np.clip without its overhead (several times slower on the robot's (4,)-sized arrays)."""
+    return np.minimum(np.maximum(x, lo), hi)
+
+
 class Gait(NamedTuple):
     """A gait, as gait.GaitParams, with numpy values."""
 
@@ -79,10 +84,12 @@ def neutral_feet(g: Gait) -> np.ndarray:
     return np.stack([x, np.full(4, -C.STANCE_HEIGHT), np.zeros(4)], axis=-1)
 
 
-def step_vectors(command, g: Gait) -> np.ndarray:
-    """command (..., 3) (vx, vy [m/s], yaw rate [rad/s]) -> (..., 4, 3) stance displacement [m]."""
+def step_vectors(command, g: Gait, neutral=None) -> np.ndarray:
+    """command (..., 3) (vx, vy [m/s], yaw rate [rad/s]) -> (..., 4, 3) stance displacement [m].
+    neutral: neutral_feet(g) if already computed."""
     command = np.asarray(command, np.float64)
-    r = C.SHOULDER_POS + (C.SHOULDER_ROT @ neutral_feet(g)[:, :, None])[:, :, 0]  # body frame
+    neutral = neutral_feet(g) if neutral is None else neutral
+    r = C.SHOULDER_POS + (C.SHOULDER_ROT @ neutral[:, :, None])[:, :, 0]  # body frame
     vx, vy, wz = command[..., 0:1], command[..., 1:2], command[..., 2:3]
     v_foot = np.stack([-(vx - wz * r[:, 1]), -(vy + wz * r[:, 0]), np.zeros_like(vx * r[:, 0])], -1)
     step_body = v_foot * _stance_time(g)  # (..., 4, 3); to the shoulder frames: R_l^T s (row s R_l)
@@ -92,10 +99,10 @@ def step_vectors(command, g: Gait) -> np.ndarray:
 def stance_progress(phase, g: Gait) -> np.ndarray:
     """gait.stance_progress: fraction of the step done at `phase` (...) in stance."""
     if not g.discontinuous:
-        return np.clip(phase / g.duty, 0.0, 1.0)
+        return _clip(phase / g.duty, 0.0, 1.0)
     shift = g.duty - 0.5
     moved = np.minimum(phase, shift) + np.maximum(phase - 0.5, 0.0)
-    return np.clip(moved / (2.0 * shift), 0.0, 1.0)
+    return _clip(moved / (2.0 * shift), 0.0, 1.0)
 
 
 def warp(u, p_t: float, p_n: float) -> np.ndarray:
@@ -121,11 +128,11 @@ def swing_point(u, lift, land, height: float, shape: int) -> np.ndarray:
 def foot_targets(t, command, g: Gait) -> np.ndarray:
     """gait.foot_targets without a body offset: t (...) [s], command (..., 3) -> (..., 4, 3) [m]."""
     phase = leg_phases(t, g)
-    step = step_vectors(command, g)
     neutral = neutral_feet(g)
+    step = step_vectors(command, g, neutral)
     p_start, p_end = neutral - 0.5 * step, neutral + 0.5 * step
     stance = p_start + stance_progress(phase, g)[..., None] * step
-    u = warp(np.clip((phase - g.duty) / (1.0 - g.duty), 0.0, 1.0), g.p_t, g.p_n)
+    u = warp(_clip((phase - g.duty) / (1.0 - g.duty), 0.0, 1.0), g.p_t, g.p_n)
     swing = swing_point(u, p_end, p_start, g.step_height_m, g.swing)
     return np.where((phase < g.duty)[..., None], stance, swing)
 
@@ -140,7 +147,7 @@ def ramped_gait_targets(progress, episode_time_s, command, g: Gait, ctrl_dt: flo
     """env.QuadsonEnv.gait_targets: the gait at `progress` (fraction of a cycle), blended from the home
     stance by a smoothstep of (episode_time_s + ctrl_dt) / ramp_s. -> (..., 4, 3) [m]."""
     targets = foot_targets(np.asarray(progress) * g.cycle_s, command, g)
-    s = np.clip((np.asarray(episode_time_s) + ctrl_dt) / ramp_s, 0.0, 1.0)[..., None, None]
+    s = _clip((np.asarray(episode_time_s) + ctrl_dt) / ramp_s, 0.0, 1.0)[..., None, None]
     home = home_feet()
     return home + (s * s * (3.0 - 2.0 * s)) * (targets - home)
 
@@ -149,7 +156,7 @@ def ramped_gait_targets(progress, episode_time_s, command, g: Gait, ctrl_dt: flo
 
 
 def _sin_acos(x):
-    x = np.clip(x, -1.0, 1.0)
+    x = _clip(x, -1.0, 1.0)
     return np.sqrt(np.maximum(1.0 - x * x, 0.0))
 
 
@@ -164,7 +171,7 @@ def leg_ik(foot) -> tuple[np.ndarray, np.ndarray]:
     l23 = C.L2 + C.L3
     c12 = (C.L1**2 + l1e**2 - l23**2) / (2.0 * C.L1 * l1e)
     ce, se = x / l1e, r / l1e
-    cb, sb = np.clip(c12, -1.0, 1.0), _sin_acos(c12)
+    cb, sb = _clip(c12, -1.0, 1.0), _sin_acos(c12)
     c1, s1 = ce * cb - se * sb, se * cb + ce * sb
     t1 = np.arctan2(s1, c1)
     t1 = np.where(t1 < 0.0, t1 + 2.0 * np.pi, t1)
@@ -174,7 +181,7 @@ def leg_ik(foot) -> tuple[np.ndarray, np.ndarray]:
     l35 = np.sqrt(np.maximum(dx * dx + dy * dy, _TINY))
     c354 = (l35**2 + C.L5**2 - C.L4**2) / (2.0 * l35 * C.L5)
     cd, sd = dx / l35, -dy / l35
-    cb, sb = np.clip(c354, -1.0, 1.0), _sin_acos(c354)
+    cb, sb = _clip(c354, -1.0, 1.0), _sin_acos(c354)
     c5, s5 = cd * cb + sd * sb, sd * cb - cd * sb
     t5 = np.arctan2(s5, c5)
     angles = np.stack([t0, t1, t5], axis=-1)
@@ -197,6 +204,6 @@ def motor_targets(feet) -> tuple[np.ndarray, np.ndarray]:
     toe-in guard (..., 4, 3) [rad], valid (..., 4) bool)."""
     angles, valid = leg_ik(feet)
     lo, hi = C.MOTOR_RANGES[:, 0], C.MOTOR_RANGES[:, 1]
-    angles = np.clip(np.nan_to_num(angles), lo, hi)
-    angles[..., 2] = np.clip(np.minimum(angles[..., 2], angles[..., 1] + C.TOE_IN_MAX), lo[2], hi[2])
+    angles = _clip(np.nan_to_num(angles), lo, hi)
+    angles[..., 2] = _clip(np.minimum(angles[..., 2], angles[..., 1] + C.TOE_IN_MAX), lo[2], hi[2])
     return angles, valid
