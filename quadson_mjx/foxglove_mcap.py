@@ -497,6 +497,8 @@ def record(
 
     ctrl_dt = env.ctrl_dt
     falls = nan_resets = 0
+    # command: (3,) for all envs or (n_envs, 3), one per env
+    command_text = "sampled per env" if command is None else json.dumps(np.asarray(command, float).tolist())
     with RolloutWriter(path, env.mj_model, n_envs, ctrl_dt, overwrite=overwrite, viz_envs=viz_envs) as w:
         info = {
             "controller": controller.name,
@@ -505,8 +507,7 @@ def record(
             "n_steps": n_steps,
             "ctrl_dt_s": ctrl_dt,
             "terrain": env.config.terrain,
-            # (3,) for all envs or (n_envs, 3), one per env
-            "command": "sampled per env" if command is None else json.dumps(np.asarray(command, float).tolist()),
+            "command": command_text,
             **(metadata or {}),
         }
         w.write_metadata("rollout", info)
