@@ -17,12 +17,17 @@ for eval/report.py. With --run, the named controllers get the policy's ground co
 termination settings, so that falls mean the same. `--randomize` switches domain randomization
 (one randomized model per env) and pushes on, for every controller.
 Env config keys can be overridden with --env.KEY=VALUE (named controllers only).
-Check a file: python -m quadson_mjx.mcap_check FILE --rollout
+`--video out.mp4` (or .gif) also renders the first environment, headless, at the control rate
+(quadson_mjx.video). Check a file: python -m quadson_mjx.mcap_check FILE --rollout
+
+A usage error (an impossible number, an output that exists without --overwrite, a missing run
+directory) exits with status 2 and one line naming the argument and the fix, before anything runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -63,9 +68,17 @@ def policy_ground_overrides(run_dir) -> list[str]:
     cfg = with_added_keys(training.load_run_config(Path(run_dir))[0])
     return [
         f"base_terrain_contact={cfg.base_terrain_contact}",
+        f"joint_limits={cfg.joint_limits}",
         f"termination.base_below_terrain={cfg.termination.base_below_terrain}",
         f"termination.base_clearance_m={cfg.termination.base_clearance_m}",
     ]
+
+
+TERRAINS = ("flat", "rough")
+
+
+class UsageError(Exception):
+    """A bad command line: main() prints it as one line and exits with status 2."""
 
 
 def parse(argv):
@@ -92,12 +105,68 @@ def parse(argv):
         "--randomize", action="store_true", help="domain randomization (a model per env) and pushes on"
     )
     p.add_argument("--no-sweep", action="store_true", help="--suite without the command sweep")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--video", default=None, help="also render env 0 to this .mp4 or .gif (headless)")
+    p.add_argument("--video-size", default="640x480", help="video frame size WIDTHxHEIGHT [pixels]")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     args, rest = p.parse_known_args(argv)
     bad = [r for r in rest if not r.startswith("--env.")]
     if bad:
         p.error(f"unrecognised arguments: {' '.join(bad)}")
     return args, [r[len("--env.") :] for r in rest]
+
+
+def check_args(args) -> None:
+    """Raises UsageError for values the rollout cannot run with, before anything is computed."""
+    if args.envs < 1:
+        raise UsageError(f"--envs {args.envs}: need at least 1 environment (e.g. --envs 1)")
+    if not args.seconds > 0 or not math.isfinite(args.seconds):
+        raise UsageError(f"--seconds {args.seconds}: the trial length must be a positive number of seconds")
+    if args.viz_envs < 0:
+        raise UsageError(f"--viz-envs {args.viz_envs}: must be >= 0 (0 draws no environment)")
+    if args.segment_steps < 1:
+        raise UsageError(f"--segment-steps {args.segment_steps}: must be >= 1")
+    if args.run is not None and not (Path(args.run) / "config.json").is_file():
+        raise UsageError(f"--run {args.run}: not a training run directory (no config.json in it)")
+    if args.checkpoint is not None and not Path(args.checkpoint).is_file():
+        raise UsageError(f"--checkpoint {args.checkpoint}: no such file")
+    if args.video is not None:
+        if Path(args.video).suffix.lower() not in (".mp4", ".gif"):
+            raise UsageError(f"--video {args.video}: the file name must end in .mp4 or .gif")
+        if args.suite:
+            raise UsageError("--video renders one rollout: leave it out of --suite")
+        video_size(args.video_size)
+    outputs = suite_outputs(args) if args.suite else [Path(args.out)] if args.out else []
+    outputs += [Path(args.video)] if args.video else []
+    for out in outputs:
+        if out.exists() and not args.overwrite:
+            raise UsageError(f"{out} exists: pass --overwrite to replace it, or choose another name")
+
+
+def video_size(text: str) -> tuple[int, int]:
+    """ "640x480" -> (640, 480); UsageError unless two even numbers of pixels in [16, 4096]."""
+    parts = text.lower().split("x")
+    if len(parts) == 2 and all(p.isdigit() and 16 <= int(p) <= 4096 and int(p) % 2 == 0 for p in parts):
+        return int(parts[0]), int(parts[1])
+    raise UsageError(f"--video-size {text}: give WIDTHxHEIGHT in even numbers of pixels, e.g. 640x480")
+
+
+def suite_tasks(args) -> dict:
+    """task name -> command of the suite: None (the gait's forward walk), (3,), or (75, 3) the sweep."""
+    return {
+        "forward": None,
+        "turn": (0.0, 0.0, SUITE_YAW_RATE),
+        **({} if args.no_sweep else {"sweep": sweep_commands()}),
+    }
+
+
+def suite_path(args, name: str, terrain: str, task: str) -> Path:
+    tag = "_randomized" if args.randomize else ""
+    return Path(args.out_dir) / f"{name}_{terrain}{tag}_{task}.mcap"
+
+
+def suite_outputs(args) -> list[Path]:
+    names = [*R.CONTROLLERS, *(["policy"] if args.run else [])]
+    return [suite_path(args, n, ter, task) for n in names for ter in TERRAINS for task in suite_tasks(args)]
 
 
 def build(args, overrides, controller_name: str, terrain: str | None):
@@ -107,7 +176,7 @@ def build(args, overrides, controller_name: str, terrain: str | None):
 
         policy, env_cfg, _, _ = training.load_policy(Path(args.run), args.checkpoint)
         if overrides:
-            raise SystemExit("--env overrides are not allowed with --run: the policy's env config is used")
+            raise UsageError("--env overrides are not allowed with --run: the policy's env config is used")
         env_cfg = with_added_keys(env_cfg)
         if terrain and terrain != env_cfg.terrain:
             env_cfg = apply_overrides(env_cfg, [f"terrain={terrain}"])
@@ -128,24 +197,37 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
         seed_speed = float(gait.seed_speed(gait.gait_params(env.config.gait, swing=env.config.swing)))
         vx = seed_speed if args.vx is None else args.vx
         command = (vx, args.vy, args.yaw_rate)
-    n_steps = max(1, round(args.seconds / env.ctrl_dt))
+    n_steps = round(args.seconds / env.ctrl_dt)
+    if n_steps < 1:
+        raise UsageError(f"--seconds {args.seconds}: shorter than one control step ({env.ctrl_dt} s)")
     n_envs = len(command) if np.ndim(command) == 2 else args.envs
     out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    summary = foxglove_mcap.record(
-        out,
-        env,
-        controller,
-        jax.random.PRNGKey(args.seed),
-        n_envs,
-        n_steps,
-        command=command,
-        segment_steps=args.segment_steps,
-        metadata={**meta, "seed": args.seed, "trial_s": n_steps * env.ctrl_dt},
-        overwrite=args.overwrite,
-        viz_envs=args.viz_envs,
-        randomize=args.randomize,
-    )
+    video = None
+    if args.video:
+        from quadson_mjx import video as V
+
+        size = video_size(args.video_size)
+        video = V.RolloutVideo(args.video, env.mj_model, env.ctrl_dt, overwrite=args.overwrite, size=size)
+    try:
+        summary = foxglove_mcap.record(
+            out,
+            env,
+            controller,
+            jax.random.PRNGKey(args.seed),
+            n_envs,
+            n_steps,
+            command=command,
+            segment_steps=args.segment_steps,
+            metadata={**meta, "seed": args.seed, "trial_s": n_steps * env.ctrl_dt},
+            overwrite=args.overwrite,
+            viz_envs=args.viz_envs,
+            randomize=args.randomize,
+            on_segment=None if video is None else video.add_segment,
+        )
+    finally:
+        if video is not None:
+            video.close()
     shown = "sweep" if np.ndim(command) == 2 else tuple(round(c, 3) for c in command)
     print(
         f"{out}: {controller.name}, {env.config.terrain}, command {shown}, "
@@ -156,6 +238,15 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
 
 def main(argv=None) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
+    try:
+        check_args(args)
+        return _main(args, overrides)
+    except UsageError as e:
+        print(f"rollout.py: error: {e}", file=sys.stderr)
+        return 2
+
+
+def _main(args, overrides) -> int:
     default_name = "policy" if args.run else args.controller
     if not args.suite:
         command = None if args.vx is None else (args.vx, args.vy, args.yaw_rate)
@@ -166,18 +257,13 @@ def main(argv=None) -> int:
         return 0
     names = [*R.CONTROLLERS, *(["policy"] if args.run else [])]
     out_dir = Path(args.out_dir)
-    tasks = {
-        "forward": None,
-        "turn": (0.0, 0.0, SUITE_YAW_RATE),
-        **({} if args.no_sweep else {"sweep": sweep_commands()}),
-    }
+    tasks = suite_tasks(args)
     named_overrides = [*policy_ground_overrides(args.run), *overrides]
-    tag = "_randomized" if args.randomize else ""
     for name in names:
-        for terrain in ("flat", "rough"):
+        for terrain in TERRAINS:
             for task, command in tasks.items():
-                path = out_dir / f"{name}_{terrain}{tag}_{task}.mcap"
-                one(args, named_overrides, name, terrain, command, path)
+                over = overrides if name == "policy" else named_overrides  # a policy keeps its own config
+                one(args, over, name, terrain, command, suite_path(args, name, terrain, task))
     print(f"compare: python eval/report.py {out_dir}/*.mcap --out-dir {out_dir}")
     return 0
 

@@ -93,6 +93,24 @@ GAITS: dict[str, dict] = {
     "gallop": _gait((0.1, 0.25, 0.6, 0.75), 0.5, 0.35, 7.0, 21.0),
 }
 
+# Seed 003 (robots.md): trot with a 0.5 s cycloid swing, 5 cm height, P_T 0.66, P_N 0.33, a
+# 0.05 m/s command, body shifts between swings. The shift duration is not published: this project
+# takes shift = swing = 0.5 s (duty 0.75, cycle 2 s) and a 10 cm step, so the default speed
+# step / cycle equals seed 003's 0.05 m/s command.
+SEED_003_P_T = 0.66
+SEED_003_P_N = 0.33
+DISCONTINUOUS_TROT = {
+    "phase_offset": GAITS["trot"]["phase_offset"],
+    "cycle_s": 2.0,
+    "duty": 0.75,
+    "step_height_m": 0.05,
+    "step_length_m": 0.10,
+    "swing": "cycloid",
+    "p_t": SEED_003_P_T,
+    "p_n": SEED_003_P_N,
+    "discontinuous": True,
+}
+
 # --- MJCF names: {LEG}_{part}_joint, actuators {LEG}_{part}, feet {LEG}_foot ---
 MOTORS: tuple[str, ...] = ("motor0", "motor1", "motor5")  # t0 (abduction), t1 (at p1), t5 (at p5)
 PASSIVE: tuple[str, ...] = ("knee2", "knee4")  # passive hinges at p2 and p4

@@ -1,8 +1,10 @@
-"""A trained policy for the robot's computer: one .npz file and a numpy-only inference function.
+"""A trained policy for the robot's computer: one .npz or .onnx file, and numpy-only inference.
 
-    python -m quadson_mjx.export RUN_DIR OUT.npz [--checkpoint PATH]
+    python -m quadson_mjx.export RUN_DIR OUT.npz  [--checkpoint PATH] [--overwrite]
+    python -m quadson_mjx.export RUN_DIR OUT.onnx [--checkpoint PATH] [--overwrite]
 
-The file holds the observation normaliser (mean, std) and the policy MLP's layers of a brax PPO
+The output's suffix picks the format; an existing file is kept unless --overwrite is given. The .npz
+holds the observation normaliser (mean, std) and the policy MLP's layers of a brax PPO
 checkpoint (quadson_mjx.training), plus the env and PPO configs as JSON so the robot side can check
 the observation layout (29 values, seed 000: rpy, body linear and angular velocity, 12 motor
 positions, sin/cos of the 4 leg phases; + command (vx, vy, yaw rate) when command tracking).
@@ -12,6 +14,12 @@ hidden layer -> Dense -> the Gaussian's mean, in float32; then, by the run's pol
 "tanh_normal": tanh of the first action_size outputs (the last layer also carries the scales),
 "gait_normal": the mean clipped to [-1, 1] (what the env does to every action). The result is the
 env's normalised action in [-1, 1]: foot offsets times env.action_scale_m [m].
+
+The .onnx is the same computation as one ONNX graph (opset ONNX_OPSET, written with the `onnx`
+package): input "obs" float32 [batch, obs_size], output "action" float32 [batch, action_size]; the
+normaliser's mean and std are constants of the graph, and the run's metadata (the .npz's meta_json)
+and the observation layout are in the model's metadata_props. ONNX Runtime runs it
+(quadson_mjx.deploy does, on the robot).
 
 Only numpy is imported at module level: copy this file and the .npz onto the robot.
 """
@@ -24,6 +32,15 @@ from pathlib import Path
 import numpy as np
 
 FORMAT_VERSION = 2  # 2 added "squash"; a version-1 file is a tanh_normal policy
+SUFFIXES = (".npz", ".onnx")
+ONNX_OPSET = 17  # every op used is older; ONNX Runtime >= 1.13 runs opset 17
+ONNX_IR_VERSION = 8  # the IR of opset 17: a newer one would shut out older runtimes
+OBS_LAYOUT = (
+    "roll, pitch, yaw [rad] (ZYX); base linear velocity (3) [m/s] and angular velocity (3) [rad/s] in "
+    "the body frame (x forward, y left, z up); 12 motor positions [rad], legs FL FR RL RR x motors "
+    "(motor0, motor1, motor5); sin of the 4 leg phases (2 pi x phase); cos of the 4 leg phases; + "
+    "command (vx [m/s], vy [m/s], yaw rate [rad/s]) when command tracking"
+)
 SQUASH = {"tanh": np.tanh, "clip": lambda x: np.clip(x, np.float32(-1.0), np.float32(1.0))}
 ACTIVATIONS = {
     "swish": lambda x: x * (np.float32(0.5) + np.float32(0.5) * np.tanh(np.float32(0.5) * x)),  # x sigmoid(x)
@@ -124,8 +141,27 @@ def export_arrays(
     return out
 
 
-def export_run(run_dir: str | Path, out_path: str | Path, checkpoint: str | Path | None = None) -> Path:
-    """Exports the newest (or the given) checkpoint of a training run directory to out_path (.npz)."""
+def check_output(out_path: str | Path, overwrite: bool = False) -> Path:
+    """The output path if it can be written: ValueError for an unknown suffix, FileExistsError for
+    an existing file without overwrite."""
+    out_path = Path(out_path)
+    if out_path.suffix.lower() not in SUFFIXES:
+        raise ValueError(
+            f"{out_path}: unknown output format {out_path.suffix or '(no suffix)'!r}; "
+            f"name the file *.npz (numpy) or *.onnx (ONNX)"
+        )
+    if out_path.exists() and not overwrite:
+        raise FileExistsError(f"{out_path} exists: pass --overwrite to replace it, or choose another name")
+    return out_path
+
+
+def export_run(
+    run_dir: str | Path, out_path: str | Path, checkpoint: str | Path | None = None, overwrite: bool = False
+) -> Path:
+    """Exports the newest (or the given) checkpoint of a training run directory to out_path, a .npz
+    or an .onnx by its suffix, written under exactly that name. Raises (before loading anything)
+    ValueError for another suffix and FileExistsError if out_path exists and not overwrite."""
+    out_path = check_output(out_path, overwrite)
     from quadson_mjx import training
     from quadson_mjx.config import to_json
     from quadson_mjx.env import QuadsonEnv
@@ -150,17 +186,101 @@ def export_run(run_dir: str | Path, out_path: str | Path, checkpoint: str | Path
         meta,
         distribution=ppo_cfg.policy_distribution,
     )
-    out_path = Path(out_path)
-    np.savez(out_path, **arrays)
+    data = onnx_model(arrays).SerializeToString() if out_path.suffix.lower() == ".onnx" else None
+    with open(out_path, "wb" if overwrite else "xb") as f:  # "x": never replace a file that appeared
+        if data is not None:
+            f.write(data)
+        else:
+            np.savez(f, **arrays)  # to a file object: numpy appends no ".npz"
     return out_path
 
 
-if __name__ == "__main__":
-    import argparse
+def onnx_model(arrays: dict):
+    """The .npz's arrays -> an onnx.ModelProto computing NumpyPolicy's action, checked by
+    onnx.checker. Needs the `onnx` package (pip install "quadson_mjx[deploy]")."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
 
-    p = argparse.ArgumentParser(description="Export a trained policy to .npz for numpy inference.")
-    p.add_argument("run_dir")
-    p.add_argument("out")
-    p.add_argument("--checkpoint", default=None)
-    a = p.parse_args()
-    print(export_run(a.run_dir, a.out, a.checkpoint))
+    policy = NumpyPolicy(arrays)
+    if policy.activation != "swish":
+        raise ValueError(f"ONNX export supports the swish activation, not {policy.activation!r}")
+    n = len(policy.kernels)
+    inits = [numpy_helper.from_array(policy.mean, "obs_mean"), numpy_helper.from_array(policy.std, "obs_std")]
+    nodes = [
+        helper.make_node("Sub", ["obs", "obs_mean"], ["centred"]),
+        helper.make_node("Div", ["centred", "obs_std"], ["x0"]),
+    ]
+    for i, (w, b) in enumerate(zip(policy.kernels, policy.biases, strict=True)):
+        last = i == n - 1
+        if last:  # only the Gaussian's mean: the first action_size outputs
+            w, b = w[:, : policy.action_size], b[: policy.action_size]
+        inits += [numpy_helper.from_array(w, f"kernel_{i}"), numpy_helper.from_array(b, f"bias_{i}")]
+        nodes += [
+            helper.make_node("MatMul", [f"x{i}", f"kernel_{i}"], [f"mm{i}"]),
+            helper.make_node("Add", [f"mm{i}", f"bias_{i}"], ["mean" if last else f"pre{i}"]),
+        ]
+        if not last:  # swish(x) = x sigmoid(x)
+            nodes += [
+                helper.make_node("Sigmoid", [f"pre{i}"], [f"sig{i}"]),
+                helper.make_node("Mul", [f"pre{i}", f"sig{i}"], [f"x{i + 1}"]),
+            ]
+    if policy.squash == "tanh":
+        nodes.append(helper.make_node("Tanh", ["mean"], ["action"]))
+    else:
+        inits += [
+            numpy_helper.from_array(np.float32(-1.0), "lo"),
+            numpy_helper.from_array(np.float32(1.0), "hi"),
+        ]
+        nodes.append(helper.make_node("Clip", ["mean", "lo", "hi"], ["action"]))
+    graph = helper.make_graph(
+        nodes,
+        "quadson_policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", policy.obs_size])],
+        [helper.make_tensor_value_info("action", TensorProto.FLOAT, ["batch", policy.action_size])],
+        initializer=inits,
+    )
+    model = helper.make_model(
+        graph,
+        opset_imports=[helper.make_opsetid("", ONNX_OPSET)],
+        producer_name="quadson_mjx",
+        doc_string=(
+            f"obs [batch, {policy.obs_size}] float32: {OBS_LAYOUT}. action [batch, {policy.action_size}] "
+            "float32 in [-1, 1]: foot offsets (x, y, z per leg, FL FR RL RR, shoulder frames) over "
+            "action_scale_m [m], added to the gait's foot targets (then 2 gait scales if gait_action)"
+        ),
+    )
+    model.ir_version = ONNX_IR_VERSION
+    helper.set_model_props(model, {"meta_json": json.dumps(policy.meta), "obs_layout": OBS_LAYOUT})
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+def main(argv=None) -> int:
+    """The command line; a bad argument prints one line and returns 2 before anything is loaded."""
+    import argparse
+    import sys
+
+    p = argparse.ArgumentParser(
+        prog="python -m quadson_mjx.export",
+        description="Export a trained policy to .npz (numpy inference) or .onnx (ONNX Runtime).",
+    )
+    p.add_argument("run_dir", help="training run directory (config.json, checkpoints/)")
+    p.add_argument("out", help="output file: *.npz or *.onnx")
+    p.add_argument("--checkpoint", default=None, help="checkpoint file (default: the run's newest)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    a = p.parse_args(argv)
+    try:
+        check_output(a.out, a.overwrite)
+        if not (Path(a.run_dir) / "config.json").is_file():
+            raise ValueError(f"{a.run_dir}: not a training run directory (no config.json in it)")
+        if a.checkpoint is not None and not Path(a.checkpoint).is_file():
+            raise ValueError(f"--checkpoint {a.checkpoint}: no such file")
+    except (ValueError, FileExistsError) as e:
+        print(f"{p.prog}: error: {e}", file=sys.stderr)
+        return 2
+    print(export_run(a.run_dir, a.out, a.checkpoint, overwrite=a.overwrite))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -16,7 +16,8 @@ Topics (t = simulation time of the step's end; the static scene at t = 0):
                                                at the base origin, from the physics state (the env
                                                switches MuJoCo's sensors off)
     /rollout/step    JSON                      one per env per step: observation, action, foot targets,
-                                               reward terms, contacts, closure residual, base state
+                                               motor targets sent (t0, t1, t5 per leg [rad]), reward
+                                               terms, contacts, closure residual, base state
     /log             foxglove.Log              episode starts, falls, non-finite resets, the end
 
 Frames of environment i are prefixed `env{i}/` (`env0/base`, `env0/FL_link2`); the floor is drawn
@@ -354,6 +355,10 @@ class RolloutWriter:
                 self._imu.log(_dumps(imu), log_time=t_ns)
             touch = traj.foot_force[k, i]
             rpy, v, w = traj.rpy[k, i], traj.lin_vel[k, i], traj.ang_vel[k, i]
+            motor = {}
+            if traj.motor_targets is not None:
+                m = traj.motor_targets[k, i].reshape(C.NUM_LEGS, 3)
+                motor["motor_targets"] = {leg: m[n] for n, leg in enumerate(C.LEGS)}
             step = {
                 "env": i,
                 "episode_step": int(traj.episode_step[k, i]),
@@ -376,6 +381,7 @@ class RolloutWriter:
                 "observation": traj.obs[k, i],
                 "action": traj.action[k, i],
                 "foot_targets": {leg: traj.foot_targets[k, i, n] for n, leg in enumerate(C.LEGS)},
+                **motor,
                 "reward": {"total": traj.reward[k, i], **{n: v[k, i] for n, v in traj.reward_terms.items()}},
                 "contacts": {leg: bool(touch[n] > 0) for n, leg in enumerate(C.LEGS)},
                 "foot_force_n": {leg: touch[n] for n, leg in enumerate(C.LEGS)},
@@ -451,6 +457,7 @@ _STEP_SCHEMA = {
         "observation": {"type": "array", "items": _NUM},
         "action": {"type": "array", "items": _NUM},
         "foot_targets": _PER_LEG_VEC,
+        "motor_targets": _PER_LEG_VEC,
         "reward": {"type": "object", "additionalProperties": _NUM},
         "contacts": {"type": "object", "properties": {leg: {"type": "boolean"} for leg in C.LEGS}},
         "foot_force_n": _PER_LEG_NUM,
@@ -483,11 +490,15 @@ def record(
     overwrite: bool = False,
     viz_envs: int | None = 16,
     randomize: bool = False,
+    on_segment=None,
 ) -> dict:
     """Runs `quadson_mjx.rollout.run` and writes it to `path`. Flushes after the static scene, at
-        every step where an episode ends and after every segment. The first `viz_envs` environments (None:
+    every step where an episode ends and after every segment. The first `viz_envs` environments (None:
     all) are drawn; /rollout/step has every one. command: None (sampled), (3,) or one per env (B, 3).
-    -> {"steps", "falls", "off_field", "nan_resets"}."""
+    on_segment(first step index, host Trajectory [t, B]) is called after each segment is written
+    (e.g. a video renderer). -> {"steps", "falls", "off_field", "nan_resets"}."""
+    if n_envs < 1 or n_steps < 1:
+        raise ValueError(f"a rollout needs n_envs >= 1 and n_steps >= 1, got {n_envs} and {n_steps}")
     from quadson_mjx import rollout as qrollout
     from quadson_mjx.config import to_json
     from quadson_mjx.model import model_xml_text
@@ -495,6 +506,8 @@ def record(
 
     ctrl_dt = env.ctrl_dt
     falls = nan_resets = off_field = 0
+    # command: (3,) for all envs or (n_envs, 3), one per env
+    command_text = "sampled per env" if command is None else json.dumps(np.asarray(command, float).tolist())
     with RolloutWriter(path, env.mj_model, n_envs, ctrl_dt, overwrite=overwrite, viz_envs=viz_envs) as w:
         info = {
             "controller": controller.name,
@@ -503,7 +516,7 @@ def record(
             "n_steps": n_steps,
             "ctrl_dt_s": ctrl_dt,
             "terrain": env.config.terrain,
-            "command": "sampled per env" if command is None else json.dumps(np.asarray(command).tolist()),
+            "command": command_text,
             "randomize": randomize,
             **(metadata or {}),
         }
@@ -542,6 +555,8 @@ def record(
                 if len(ended):
                     w.flush()
             w.flush()
+            if on_segment is not None:
+                on_segment(start, traj)
         w.log(
             step_time_ns(n_steps - 1, ctrl_dt),
             "info",

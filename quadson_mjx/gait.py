@@ -50,23 +50,10 @@ from quadson_mjx import body, fivebar
 from quadson_mjx import constants as C
 from quadson_mjx import swing as S
 
-# Seed 003 (robots.md): trot with a 0.5 s cycloid swing, 5 cm height, P_T 0.66, P_N 0.33, a
-# 0.05 m/s command, body shifts between swings. The shift duration is not published: this project
-# takes shift = swing = 0.5 s (duty 0.75, cycle 2 s) and a 10 cm step, so the default speed
-# step / cycle equals seed 003's 0.05 m/s command.
-SEED_003_P_T = 0.66
-SEED_003_P_N = 0.33
-DISCONTINUOUS_TROT = {
-    "phase_offset": C.GAITS["trot"]["phase_offset"],
-    "cycle_s": 2.0,
-    "duty": 0.75,
-    "step_height_m": 0.05,
-    "step_length_m": 0.10,
-    "swing": "cycloid",
-    "p_t": SEED_003_P_T,
-    "p_n": SEED_003_P_N,
-    "discontinuous": True,
-}
+# Seed 003's discontinuous trot: constants.DISCONTINUOUS_TROT (the numpy gait of deploy shares it).
+SEED_003_P_T = C.SEED_003_P_T
+SEED_003_P_N = C.SEED_003_P_N
+DISCONTINUOUS_TROT = C.DISCONTINUOUS_TROT
 GAIT_NAMES: tuple[str, ...] = (*C.GAITS, "trot_discontinuous")
 
 

@@ -168,6 +168,9 @@ class Trajectory(NamedTuple):
     off_field: jax.Array  # (T, B) bool: it ended at the stone field's edge (not a fall)
     base_height: jax.Array  # (T, B) base origin above the ground under it [m]
     base_below_terrain: jax.Array  # (T, B) bool: the base box's bottom face is below the ground
+    # (T, B, 12) the position targets the step sent to the motors [rad], LEGS x MOTORS (the
+    # reference a deployment loop's output is checked against); None where not recorded
+    motor_targets: jax.Array | None = None
 
 
 def _set_command(env, state, command):
@@ -214,6 +217,7 @@ def make_rollout(env, controller: Controller, n_steps: int, step_b=None):
     """-> jitted rollout(carry) -> (carry, Trajectory [n_steps, B]) of consecutive control steps.
     step_b: batched env step (default: vmap of env.step on the nominal model; randomized_step)."""
     ids = qmodel.model_ids(env.mj_model)
+    motor_actuator = jnp.asarray(ids.motor_actuator)
     foot_geoms = jnp.asarray(foot_geom_ids(env.mj_model))
     gravity = jnp.asarray(env.mj_model.opt.gravity, jnp.float32)
     act_b = jax.vmap(controller.act)
@@ -256,6 +260,7 @@ def make_rollout(env, controller: Controller, n_steps: int, step_b=None):
             off_field=nxt.metrics["off_field"] > 0,
             base_height=nxt.metrics["base_height"],
             base_below_terrain=nxt.metrics["base_below_terrain"] > 0,
+            motor_targets=nxt.info["last_ctrl"][:, motor_actuator],
         )
 
         def restart(first, current):

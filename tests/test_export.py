@@ -1,4 +1,5 @@
-"""Policy export: the numpy inference of the .npz equals brax's JAX policy to float32 precision."""
+"""Policy export: the numpy inference of the .npz and ONNX Runtime on the .onnx equal brax's JAX policy
+to float32 precision; the command line refuses to overwrite and to guess a format (issue 13)."""
 
 import json
 import subprocess
@@ -7,6 +8,8 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import onnx
+import onnxruntime as ort
 import pytest
 
 from quadson_mjx import export, training
@@ -49,15 +52,25 @@ def _keys(tree, key):
     return jax.tree.unflatten(treedef, list(jax.random.split(key, len(leaves))))
 
 
-def test_numpy_inference_matches_the_jax_policy(run_dir, tmp_path):
-    out = export.export_run(run_dir, tmp_path / "policy.npz")
-    numpy_policy = export.load(out)
+def _jax_actions(run_dir, obs):
+    """brax's deterministic policy as the env applies it (clipped to [-1, 1])."""
     policy, _, ppo_cfg, _ = training.load_policy(run_dir)
-    obs = np.asarray(jax.random.normal(jax.random.PRNGKey(3), (64, OBS)) * 2.0, np.float32)
     want = np.asarray(jax.jit(policy)(obs, jax.random.PRNGKey(0))[0])
     if ppo_cfg.policy_distribution == "gait_normal":  # brax returns the raw mean; the env clips it
         assert np.abs(want).max() > 1.0
         want = np.clip(want, -1.0, 1.0)
+    return want
+
+
+def _random_obs():
+    return np.asarray(jax.random.normal(jax.random.PRNGKey(3), (64, OBS)) * 2.0, np.float32)
+
+
+def test_numpy_inference_matches_the_jax_policy(run_dir, tmp_path):
+    out = export.export_run(run_dir, tmp_path / "policy.npz")
+    numpy_policy = export.load(out)
+    obs = _random_obs()
+    want = _jax_actions(run_dir, obs)
     got = numpy_policy(obs)
     assert got.shape == (64, ACT) and got.dtype == np.float32
     assert np.std(want) > 0.1  # the actions spread over (-1, 1): a real comparison
@@ -81,3 +94,61 @@ def test_inference_module_imports_only_numpy(tmp_path):
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert res.stdout.strip() == "[]"
+
+
+def test_onnx_export_matches_the_jax_policy(run_dir, tmp_path):
+    out = export.export_run(run_dir, tmp_path / "policy.onnx")
+    assert out == tmp_path / "policy.onnx" and sorted(p.name for p in tmp_path.iterdir()) == ["policy.onnx"]
+    model = onnx.load(out)
+    onnx.checker.check_model(model, full_check=True)
+    assert {o.domain or "ai.onnx": o.version for o in model.opset_import} == {"ai.onnx": export.ONNX_OPSET}
+    props = {p.key: p.value for p in model.metadata_props}
+    assert json.loads(props["meta_json"])["checkpoint"] == "step_000000001000.msgpack"
+    assert "12 motor positions" in props["obs_layout"]
+    sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    (inp,), (outp,) = sess.get_inputs(), sess.get_outputs()
+    assert (inp.name, inp.shape[1], inp.type) == ("obs", OBS, "tensor(float)")
+    assert (outp.name, outp.shape[1]) == ("action", ACT)
+    obs = _random_obs()
+    want = _jax_actions(run_dir, obs)
+    (got,) = sess.run(None, {"obs": obs})
+    assert got.shape == (64, ACT) and got.dtype == np.float32
+    assert np.std(want) > 0.1
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    (one,) = sess.run(None, {"obs": obs[:1]})  # a batch of one, as on the robot
+    np.testing.assert_allclose(one[0], want[0], rtol=0, atol=1e-5)
+
+
+def test_export_refuses_to_overwrite_without_the_flag(run_dir, tmp_path, capsys):
+    out = tmp_path / "policy.npz"
+    out.write_bytes(b"an older export")
+    assert export.main([str(run_dir), str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(out) in err and "--overwrite" in err
+    assert out.read_bytes() == b"an older export"
+    assert export.main([str(run_dir), str(out), "--overwrite"]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert export.load(out).obs_size == OBS
+
+
+def test_export_rejects_an_unknown_suffix_and_writes_nothing(run_dir, tmp_path, capsys):
+    # the old CLI wrote policy.bin.npz (numpy appends the suffix) and printed "policy.bin"
+    for name in ("policy.bin", "policy"):
+        assert export.main([str(run_dir), str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and name in err and ".npz" in err and ".onnx" in err
+    with pytest.raises(ValueError, match="unknown output format"):
+        export.export_run(run_dir, tmp_path / "policy.bin")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_export_usage_error_from_the_shell_has_no_traceback(tmp_path):
+    res = subprocess.run(
+        [sys.executable, "-m", "quadson_mjx.export", str(tmp_path / "no_run"), str(tmp_path / "p.npz")],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    assert res.returncode == 2
+    assert res.stderr.count("\n") == 1 and "not a training run directory" in res.stderr
+    assert list(tmp_path.iterdir()) == []

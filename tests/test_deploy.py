@@ -1,0 +1,294 @@
+"""The deployment loop (quadson_mjx.deploy, gait_np) against the code the simulator runs.
+
+References: the JAX gait, swing and five-bar IK (in float64, so any difference is a port error), the
+env's own motor-target computation (float32, as it runs), and a recorded rollout of the trained
+policy: its /imu, /odom, /joint_states and commands replayed through the loop must give the motor
+targets the simulator applied, which the rollout logs on /rollout/step.
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from quadson_mjx import constants as C
+from quadson_mjx import deploy, fivebar, gait, gait_np, swing
+from quadson_mjx.config import to_json
+from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env_config import env_config
+
+ROOT = Path(__file__).resolve().parents[1]
+# jitted references: one compile each instead of one per eager op (GaitParams leaves are traced)
+_foot_targets = jax.jit(gait.foot_targets)
+_leg_ik = jax.jit(fivebar.leg_ik)
+_motor_targets = jax.jit(gait.motor_targets)
+
+
+def test_swing_shape_names_are_the_jax_ones():
+    assert gait_np.SWING_SHAPES == swing.SWING_SHAPES
+    assert gait_np.APEX_SCALE == swing.APEX_SCALE
+
+
+@pytest.mark.parametrize("shape", swing.SWING_SHAPES)
+@pytest.mark.parametrize("name", gait.GAIT_NAMES)
+def test_numpy_foot_targets_equal_the_jax_gait(name, shape):
+    rng = np.random.default_rng(0)
+    t = rng.uniform(-1.0, 5.0, 256)  # s, several cycles of every gait, negative times included
+    cmd = rng.uniform([-0.3, -0.2, -0.5], [0.45, 0.2, 0.5], (256, 3))
+    params = gait.gait_params(name, swing=shape)
+    with jax.enable_x64(True):
+        want = np.asarray(_foot_targets(jnp.asarray(t), jnp.asarray(cmd), params))
+    g = gait_np.gait_params(name, swing=shape)
+    # the same table; gait.gait_params stores the phase offsets in float32 (0.6 -> 0.6 + 2.4e-8)
+    assert g._replace(phase_offset=None) == params._replace(phase_offset=None)
+    np.testing.assert_allclose(g.phase_offset, params.phase_offset, rtol=0, atol=3e-8)
+    got = gait_np.foot_targets(t, cmd, g._replace(phase_offset=np.float64(params.phase_offset)))
+    assert got.shape == (256, 4, 3) and got.dtype == np.float64
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert gait_np.seed_speed(gait_np.gait_params(name)) == pytest.approx(
+        float(gait.seed_speed(gait.gait_params(name)))
+    )
+
+
+def test_numpy_ik_equals_the_jax_ik_with_its_clamp():
+    # targets over and beyond the workspace: both valid and every kind of invalid
+    rng = np.random.default_rng(1)
+    feet = rng.uniform([-0.12, -0.30, -0.12], [0.26, -0.02, 0.12], (4096, 4, 3))
+    with jax.enable_x64(True):
+        want_a, want_v = (np.asarray(x) for x in _leg_ik(jnp.asarray(feet)))
+        want_m, want_mv = (np.asarray(x) for x in _motor_targets(jnp.asarray(feet)))
+    got_a, got_v = gait_np.leg_ik(feet)
+    got_m, got_mv = gait_np.motor_targets(feet)
+    assert 0.2 < got_v.mean() < 0.8  # a real mix of valid and invalid targets
+    np.testing.assert_array_equal(got_v, want_v)
+    np.testing.assert_array_equal(got_mv, want_mv)
+    np.testing.assert_allclose(got_a, want_a, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got_m, want_m, rtol=0, atol=1e-12)
+    lo, hi = C.MOTOR_RANGES[:, 0], C.MOTOR_RANGES[:, 1]
+    assert np.all((got_m >= lo) & (got_m <= hi)) and np.all(
+        got_m[..., 2] - got_m[..., 1] <= C.TOE_IN_MAX + 1e-12
+    )
+
+
+class _FixedPolicy:
+    """Stands in for an exported policy: returns the action it is given."""
+
+    def __init__(self, env_cfg, obs_size, action_size):
+        self.meta = {"env_config": json.loads(to_json(env_cfg))}
+        self.obs_size, self.action_size = obs_size, action_size
+        self.action = np.zeros(action_size, np.float32)
+
+    def __call__(self, obs):
+        return self.action
+
+
+@pytest.mark.parametrize("gait_action", [False, True])
+def test_loop_motor_targets_equal_the_env_step_start_ramp_included(gait_action):
+    cfg = env_config()
+    cfg.unlock()
+    cfg.gait_action = gait_action
+    env = QuadsonEnv(cfg)
+    policy = _FixedPolicy(cfg, env.observation_size, env.action_size)
+    loop = deploy.DeployLoop(policy)
+    actuator = np.asarray(env._actuator_of_motor)
+    # after the jitted float64 references above, this float32 jit failed to lower on jax 0.10.2
+    # (an f32 x f64 multiply: a cached float64 constant); it passes alone and with clean caches
+    jax.clear_caches()
+    motor_targets = jax.jit(env._motor_targets)
+    rng = np.random.default_rng(2)
+    command = np.array([0.25, -0.05, 0.3])
+    # clock states in and after the 0.5 s start ramp, actions inside and beyond [-1, 1]
+    for progress, t in [(0.0, 0.0), (0.1, 0.08), (0.35, 0.3), (0.62, 0.48), (0.9, 2.0), (0.99, 7.5)]:
+        action = rng.uniform(-1.3, 1.3, env.action_size).astype(np.float32)
+        info = {
+            "gait_progress": jnp.float32(progress),
+            "episode_time": jnp.float32(t),
+            "command": jnp.asarray(command, jnp.float32),
+        }
+        ctrl, n_invalid, cycle_s, feet = motor_targets(info, jnp.clip(jnp.asarray(action), -1.0, 1.0))
+        loop.progress, loop.time_s = progress, t
+        motor, valid, got_feet, got_cycle = loop.targets(action, command)
+        np.testing.assert_allclose(got_feet, feet, rtol=0, atol=2e-6)  # float32 env, float64 loop
+        np.testing.assert_allclose(motor, np.asarray(ctrl)[actuator], rtol=0, atol=2e-5)
+        assert int(np.sum(~valid)) == int(n_invalid)
+        assert got_cycle == pytest.approx(float(cycle_s), rel=1e-6)
+
+
+def test_loop_rejects_a_policy_of_another_shape():
+    policy = _FixedPolicy(env_config(command_tracking=True), 29, 12)
+    with pytest.raises(ValueError, match="32 and 12"):
+        deploy.DeployLoop(policy)
+
+
+def test_run_loop_steps_on_the_control_clock():
+    cfg = env_config()
+    loop = deploy.DeployLoop(_FixedPolicy(cfg, 29, 12))
+    home, _ = gait_np.motor_targets(gait_np.home_feet())
+    sensors = {
+        "imu_quat_wxyz": np.array([1.0, 0.0, 0.0, 0.0]),
+        "gyro": np.zeros(3),
+        "motor_pos": home.reshape(12),
+        "base_lin_vel": np.zeros(3),
+    }
+    # a fake clock: every step takes 5 ms, except the third, which takes 50 ms (2.5 ticks)
+    now, sent, sleeps = [0.0], [], []
+    durations = iter([0.005, 0.005, 0.05, 0.005, 0.005])
+
+    def read():
+        now[0] += next(durations)
+        return sensors
+
+    deploy.time.sleep, real_sleep = (
+        (lambda s: (sleeps.append(s), now.__setitem__(0, now[0] + s))),
+        deploy.time.sleep,
+    )
+    try:
+        overruns = deploy.run_loop(loop, read, sent.append, n_steps=5, clock=lambda: now[0])
+    finally:
+        deploy.time.sleep = real_sleep
+    assert overruns == 1 and len(sent) == 5
+    # steps end at 5, 25, 90 ms; after the overrun the next tick is 100 ms, then 120, 140 ms
+    np.testing.assert_allclose(sleeps, [0.015, 0.015, 0.010, 0.015, 0.015], atol=1e-12)
+    assert loop.time_s == pytest.approx(5 * 0.02)
+
+
+def test_deploy_imports_neither_jax_nor_mujoco_nor_brax():
+    code = (
+        "import sys, numpy as np; from quadson_mjx import deploy, gait_np;"
+        "print(sorted(n for n in ('jax', 'brax', 'flax', 'mujoco') if n in sys.modules))"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert res.stdout.strip() == "[]"
+
+
+# --- replay of a recorded rollout of the trained policy ---------------------------------------------
+
+RUN = ROOT / "results" / "policy_h200_seed"
+N_ENVS, N_STEPS = 8, 125  # 1000 observations; 2.5 s each: the 0.5 s start ramp and 2.5 gait cycles
+# one command per env (vx, vy [m/s], yaw rate [rad/s]): different gaits, so different observations
+COMMANDS = np.stack(
+    [np.linspace(0.1, 0.45, N_ENVS), np.linspace(-0.1, 0.1, N_ENVS), np.linspace(0.3, -0.3, N_ENVS)], -1
+)
+
+
+@pytest.fixture(scope="module")
+def replay(tmp_path_factory):
+    """The trained policy's rollout (MJX) written to MCAP and read back, and its ONNX export."""
+    from quadson_mjx import export, mcap_check, training
+    from quadson_mjx import rollout as R
+    from quadson_mjx.foxglove_mcap import record
+
+    policy, env_cfg, _, _ = training.load_policy(RUN)
+    env = QuadsonEnv(env_cfg)
+    out = tmp_path_factory.mktemp("replay")
+    path = out / "policy.mcap"
+    summary = record(
+        path, env, R.policy_controller(policy), jax.random.PRNGKey(0), N_ENVS, N_STEPS,
+        command=COMMANDS, segment_steps=N_STEPS, viz_envs=N_ENVS,
+    )  # fmt: skip
+    assert summary["falls"] == 0 and summary["nan_resets"] == 0  # one episode per env: no reset to replay
+    msgs = mcap_check.read_messages(path, topics=("/imu", "/odom", "/joint_states", "/rollout/step"))
+    return {
+        "env": env,
+        "policy": policy,
+        "onnx": export.export_run(RUN, out / "policy.onnx"),
+        **_by_step(msgs, env),
+    }
+
+
+def _by_step(msgs, env):
+    """Messages -> per-topic arrays [N_ENVS, N_STEPS, ...] indexed by control step."""
+    dt_ns = env.ctrl_dt * 1e9
+    arrays = {
+        k: np.full((N_ENVS, N_STEPS, n), np.nan)
+        for k, n in [("quat", 4), ("gyro", 3), ("lin_vel", 3), ("motor_pos", 12), ("obs", 29), ("action", 12),
+                     ("motor_targets", 12), ("foot_targets", 12), ("command", 3)]
+    }  # fmt: skip
+    for topic, t, m in msgs:
+        k = round(t / dt_ns) - 1
+        if topic == "/imu":
+            q, w = m["orientation"], m["angular_velocity"]
+            arrays["quat"][m["env"], k] = [q["w"], q["x"], q["y"], q["z"]]
+            arrays["gyro"][m["env"], k] = [w["x"], w["y"], w["z"]]
+        elif topic == "/odom":
+            i = int(m["body_frame_id"].split("/")[0][3:])
+            v = m["linear_velocity"]
+            arrays["lin_vel"][i, k] = [v["x"], v["y"], v["z"]]
+        elif topic == "/joint_states":
+            pos = {js["name"]: js["position"] for js in m["joints"]}
+            for i in range(N_ENVS):
+                arrays["motor_pos"][i, k] = [pos[f"env{i}/{j}"] for j in C.MOTOR_JOINTS]
+        else:
+            i = m["env"]
+            arrays["obs"][i, k], arrays["action"][i, k] = m["observation"], m["action"]
+            arrays["motor_targets"][i, k] = np.ravel([m["motor_targets"][leg] for leg in C.LEGS])
+            arrays["foot_targets"][i, k] = np.ravel([m["foot_targets"][leg] for leg in C.LEGS])
+            arrays["command"][i, k] = [m["command"][c] for c in ("vx", "vy", "yaw_rate")]
+    assert all(np.all(np.isfinite(a)) for a in arrays.values())  # every step of every env logged
+    return arrays
+
+
+@pytest.mark.slow
+def test_onnx_policy_equals_the_jax_policy_on_1000_rollout_observations(replay):
+    obs = replay["obs"].reshape(-1, 29).astype(np.float32)
+    # every env starts at home with phase 0: 8 equal first observations, the rest all differ
+    assert obs.shape == (1000, 29) and np.unique(obs, axis=0).shape[0] == 1000 - (N_ENVS - 1)
+    want = np.asarray(jax.jit(replay["policy"])(obs, jax.random.PRNGKey(0))[0])
+    np.testing.assert_allclose(want, replay["action"].reshape(-1, 12), rtol=0, atol=1e-6)  # what the sim did
+    onnx_policy = deploy.load_policy(replay["onnx"])
+    got = np.stack([onnx_policy(o) for o in obs])  # one observation per call, as on the robot
+    err = float(np.max(np.abs(got - want)))
+    print(f"ONNX Runtime vs JAX policy, 1000 rollout observations: max abs error {err:.2e}")
+    assert err <= 1e-5
+
+
+@pytest.mark.slow
+def test_replayed_sensors_give_the_motor_targets_the_simulator_applied(replay):
+    """Each env's /imu (orientation, gyro), /odom (linear velocity: the estimator's input),
+    /joint_states (motor angles) and command, replayed through DeployLoop, give the logged
+    observation, action and applied motor targets; validity as the JAX IK says."""
+    from quadson_mjx import model as qmodel
+
+    env = replay["env"]
+    home = qmodel.home_qpos(env.mj_model)  # the state the first step observes (env.reset)
+    home_motor = home[qmodel.model_ids(env.mj_model).motor_qposadr]
+    policy = deploy.load_policy(replay["onnx"])
+    err = {"obs": 0.0, "action": 0.0, "motor_targets": 0.0}
+    for i in range(N_ENVS):
+        loop = deploy.DeployLoop(policy)
+        for k in range(N_STEPS):
+            if k == 0:
+                sensors = (home[3:7], np.zeros(3), home_motor, np.zeros(3))
+            else:  # what the sensors read at the end of the previous step
+                sensors = tuple(replay[n][i, k - 1] for n in ("quat", "gyro", "motor_pos", "lin_vel"))
+            out = loop.step(*sensors, command=replay["command"][i, k])
+            for name in err:
+                err[name] = max(err[name], float(np.max(np.abs(getattr(out, name) - replay[name][i, k]))))
+            np.testing.assert_allclose(
+                out.foot_targets.ravel(), replay["foot_targets"][i, k], rtol=0, atol=1e-5
+            )
+            want_valid = np.asarray(
+                _motor_targets(jnp.asarray(replay["foot_targets"][i, k].reshape(4, 3)))[1]
+            )
+            np.testing.assert_array_equal(out.valid, want_valid)
+    print(f"replay of {N_ENVS} x {N_STEPS} steps, max abs differences: {err}")
+    # Measured: obs 7.3e-6, all of it in sin/cos of the leg phases, which the simulator computes
+    # in float32 (2 pi phase ~ 6 rad: 4.8e-7 rad per float32 step) and the loop in float64; the
+    # policy carries that into the action (1.4e-5; from the logged observation ONNX Runtime gives
+    # the logged action to 1e-6); the float32 IK of the simulator: 1.3e-5 rad.
+    assert err["obs"] < 1e-5
+    assert err["action"] < 5e-5
+    assert err["motor_targets"] < 1e-4  # rad
+
+
+@pytest.mark.slow
+def test_control_step_is_well_under_a_millisecond(replay):
+    timing = deploy.bench(replay["onnx"], n_steps=500)
+    print(f"control step on this CPU: {timing}")
+    # measured 0.38 ms median on the 2-core CPU while other jobs loaded it (load average 7-8)
+    assert timing["median_ms"] < 1.0
