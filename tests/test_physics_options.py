@@ -1,0 +1,42 @@
+"""The environment's physics options (env_config keys base_terrain_contact, joint_limits, cone, impl):
+the constraint rows MJX allocates, counted by hand, and errors that name a bad value."""
+
+import mujoco
+import pytest
+from mujoco import mjx
+
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env_config import env_config
+
+
+def _rows(**overrides) -> int:
+    cfg = apply_overrides(env_config(), [f"{k}={v}" for k, v in overrides.items()])
+    env = QuadsonEnv(cfg)
+    return int(mjx.make_data(env.sys)._impl.efc_J.shape[0]), env
+
+
+# By hand: 4 five-bar closures x 3 connect rows = 12; 12 limited motor joints x 1 = 12; a condim-3
+# contact has 4 rows in a pyramidal cone and 3 in an elliptic one; each foot sphere meets the plane
+# in 1 contact, the base box in 4.
+@pytest.mark.parametrize(
+    ("overrides", "rows"),
+    [
+        ({}, 12 + 12 + 4 * 4 + 4 * 4),
+        ({"base_terrain_contact": False}, 12 + 12 + 4 * 4),
+        ({"base_terrain_contact": False, "joint_limits": False}, 12 + 4 * 4),
+        ({"base_terrain_contact": False, "joint_limits": False, "cone": "elliptic"}, 12 + 4 * 3),
+    ],
+)
+def test_constraint_rows_of_each_physics_option(overrides, rows):
+    n, env = _rows(**overrides)
+    assert n == rows
+    disabled = bool(env.mj_model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    assert disabled == (overrides.get("joint_limits") is False)
+
+
+@pytest.mark.parametrize(("key", "value"), [("cone", "round"), ("impl", "cuda")])
+def test_bad_physics_option_names_the_key(key, value):
+    cfg = apply_overrides(env_config(), [f"{key}={value}"])
+    with pytest.raises(ValueError, match=f"env.{key}"):
+        QuadsonEnv(cfg)
