@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import platform
 import subprocess
@@ -36,7 +37,7 @@ import jax
 import ml_collections
 import numpy as np
 
-from quadson_mjx.config import from_json, to_json
+from quadson_mjx.config import to_json
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -127,8 +128,15 @@ def local_devices_to_use(cfg) -> int:
     return min(n, cfg.max_devices) if cfg.max_devices else n
 
 
+def _require(cfg, key: str, ok, what: str, kind=(int, float)) -> None:
+    v = cfg[key]
+    if isinstance(v, bool) or not isinstance(v, kind) or not math.isfinite(v) or not ok(v):
+        raise ValueError(f"ppo.{key} must be {what}, got {v!r}")
+
+
 def check_ppo_config(cfg) -> None:
-    """Raises ValueError naming the key for a value brax would reject late or misread silently."""
+    """Raises ValueError naming the key for a value brax would reject late or misread silently:
+    non-finite or out-of-range numbers, sizes that do not split over the devices, unknown names."""
     if cfg.policy_distribution not in POLICY_DISTRIBUTIONS:
         raise ValueError(
             f"ppo.policy_distribution is {cfg.policy_distribution!r}; choose from {list(POLICY_DISTRIBUTIONS)}"
@@ -145,10 +153,19 @@ def check_ppo_config(cfg) -> None:
         "num_updates_per_batch",
         "num_evals",
     ):
-        if cfg[key] < 1:
-            raise ValueError(f"ppo.{key} must be >= 1, got {cfg[key]}")
-    if cfg.max_devices < 0:
-        raise ValueError(f"ppo.max_devices must be >= 0 (0: all), got {cfg.max_devices}")
+        _require(cfg, key, lambda v: v >= 1, "an integer >= 1", int)
+    positive = lambda v: v > 0  # noqa: E731
+    _require(cfg, "episode_length", lambda v: v >= 0, "an integer >= 0 (0: the env's episode length)", int)
+    _require(cfg, "max_devices", lambda v: v >= 0, "an integer >= 0 (0: all)", int)
+    _require(cfg, "seed", lambda v: 0 <= v < 2**31, "an integer in [0, 2^31)", int)
+    _require(cfg, "learning_rate", positive, "a finite number > 0")
+    _require(cfg, "entropy_cost", lambda v: v >= 0, "a finite number >= 0")
+    _require(cfg, "discounting", lambda v: 0 < v <= 1, "in (0, 1]")
+    _require(cfg, "gae_lambda", lambda v: 0 <= v <= 1, "in [0, 1]")
+    _require(cfg, "clipping_epsilon", positive, "a finite number > 0")
+    _require(cfg, "max_grad_norm", positive, "a finite number > 0 (the gradient clipping norm)")
+    _require(cfg, "reward_scaling", positive, "a finite number > 0")
+    _require(cfg, "init_noise_std", positive, "a finite number > 0")
     devices = local_devices_to_use(cfg) * jax.process_count()
     for key in ("num_envs", "batch_size"):
         if cfg[key] % devices:
@@ -158,8 +175,6 @@ def check_ppo_config(cfg) -> None:
             f"ppo.batch_size * ppo.num_minibatches = {cfg.batch_size * cfg.num_minibatches} must be a multiple "
             f"of ppo.num_envs = {cfg.num_envs} (brax collects whole unrolls of every env)"
         )
-    if cfg.policy_distribution == "gait_normal" and not cfg.init_noise_std > 0:
-        raise ValueError(f"ppo.init_noise_std must be > 0, got {cfg.init_noise_std}")
 
 
 # --- networks and checkpoints -----------------------------------------------------------------------
@@ -245,19 +260,45 @@ PPO_KEYS_ADDED = {
 }
 
 
+# Env keys added after runs were published, likewise (the value the environment used before).
+ENV_KEYS_ADDED = {"base_terrain_contact": True}
+
+
 def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collections.ConfigDict]:
     """-> (env_cfg, ppo_cfg) of a run directory, with keys added since the run filled in
-    (PPO_KEYS_ADDED); a key this version does not know is an error naming it."""
+    (PPO_KEYS_ADDED, ENV_KEYS_ADDED). A damaged or incomplete config.json, a key this version does
+    not know, a missing key, a value of the wrong type or out of range is a ValueError naming the
+    file and the key."""
+    from quadson_mjx.config import conform
+    from quadson_mjx.env_config import check_env_config, env_config
+
     path = Path(run_dir) / "config.json"
     if not path.exists():
         raise FileNotFoundError(f"{run_dir} is not a run directory: {path} does not exist")
-    data = json.loads(path.read_text())
+    copy = "a copy of both configs is in the run's train.mcap (metadata env_config and ppo_config)"
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path} is not valid JSON ({e}): the file is damaged; {copy}") from None
+    if (
+        not isinstance(data, dict)
+        or not isinstance(data.get("env"), dict)
+        or not isinstance(data.get("ppo"), dict)
+    ):
+        raise ValueError(f"{path} lacks its 'env' or 'ppo' section: the file is incomplete; {copy}")
     ppo = {**PPO_KEYS_ADDED, **data["ppo"]}
-    known = set(ppo_config(ppo.get("preset", "gpu")).keys())
-    unknown = sorted(set(ppo) - known)
-    if unknown:
-        raise ValueError(f"{path}: unknown ppo config keys {unknown} (written by another version?)")
-    return from_json(json.dumps(data["env"])), from_json(json.dumps(ppo))
+    preset = ppo.get("preset", "gpu")
+    if preset not in ("gpu", "cpu", "test"):
+        raise ValueError(f"{path}: config key 'ppo.preset' is {preset!r}; expected gpu, cpu or test")
+    env = {**ENV_KEYS_ADDED, **data["env"]}
+    try:
+        env_cfg = conform(env, env_config(), "env.", str(path))
+        ppo_cfg = conform(ppo, ppo_config(preset), "ppo.", str(path))
+        check_env_config(env_cfg)
+        check_ppo_config(ppo_cfg)
+    except ValueError as e:
+        raise ValueError(e if str(e).startswith(str(path)) else f"{path}: {e}") from None
+    return env_cfg, ppo_cfg
 
 
 def load_checkpoint(path: Path, obs_size: int, action_size: int, ppo_cfg):
@@ -287,6 +328,15 @@ def load_policy(run_dir: Path, checkpoint: Path | None = None, deterministic: bo
     nets = make_networks(env.observation_size, env.action_size, ppo_cfg)
     policy = ppo_networks.make_inference_fn(nets)(params, deterministic=deterministic)
     return policy, env_cfg, ppo_cfg, params
+
+
+def check_new_run_dir(run_dir: Path) -> None:
+    """Raises FileExistsError when `run_dir` holds anything: a new run never writes over one."""
+    run_dir = Path(run_dir)
+    if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
+        raise FileExistsError(
+            f"run directory {run_dir} is not empty; continue it with --resume {run_dir}, or choose another --run-dir"
+        )
 
 
 # --- run bookkeeping --------------------------------------------------------------------------------
@@ -362,6 +412,7 @@ def train(
 
     from quadson_mjx import compat
     from quadson_mjx.env import QuadsonEnv
+    from quadson_mjx.env_config import check_env_config
     from quadson_mjx.mcap_check import recover_messages
     from quadson_mjx.mcap_log import McapLog
     from quadson_mjx.randomize import randomization_fn
@@ -376,8 +427,8 @@ def train(
         ckpt, start_step = latest_checkpoint(run_dir)
     check_ppo_config(ppo_cfg)
     if not resume:
-        if run_dir.exists() and any(run_dir.iterdir()):
-            raise FileExistsError(f"run directory {run_dir} is not empty; use --resume to continue it")
+        check_env_config(env_cfg)
+        check_new_run_dir(run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
 
     env = QuadsonEnv(env_cfg)

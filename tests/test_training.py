@@ -179,6 +179,14 @@ def test_ppo_config_errors_name_the_key():
         ("num_envs=0", "ppo.num_envs"),
         ("max_devices=-1", "ppo.max_devices"),
         ("batch_size=3", "ppo.batch_size * ppo.num_minibatches"),
+        # issue 13, item 4: accepted before, then trained on nonsense or failed deep in XLA
+        ("learning_rate=-1", "ppo.learning_rate"),
+        ("learning_rate=1e999", "ppo.learning_rate"),
+        ("discounting=2", "ppo.discounting"),
+        ("gae_lambda=-1", "ppo.gae_lambda"),
+        ("max_grad_norm=-1", "ppo.max_grad_norm"),
+        ("episode_length=-5", "ppo.episode_length"),
+        ("clipping_epsilon=0", "ppo.clipping_epsilon"),
     ):
         with pytest.raises(ValueError, match=key.replace("*", r"\*")):
             training.check_ppo_config(apply_overrides(base, [override]))
@@ -209,6 +217,73 @@ def test_run_configs_written_before_new_keys_still_load(tmp_path):
     (run / "config.json").write_text(json.dumps(data))
     with pytest.raises(ValueError, match="policy_hiden"):
         training.load_run_config(run)
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda text, data: text[: len(text) // 2], "not valid JSON"),
+        (lambda text, data: json.dumps({"env": data["env"]}), "lacks its 'env' or 'ppo' section"),
+        (
+            lambda text, data: json.dumps({**data, "ppo": _without(data["ppo"], "learning_rate")}),
+            "ppo.learning_rate' is missing",
+        ),
+        (lambda text, data: json.dumps({**data, "ppo": {**data["ppo"], "num_envs": "many"}}), "ppo.num_envs"),
+        (
+            lambda text, data: json.dumps({**data, "ppo": {**data["ppo"], "discounting": 2.0}}),
+            "ppo.discounting",
+        ),
+        (lambda text, data: json.dumps({**data, "env": {**data["env"], "terrain": "moon"}}), "env.terrain"),
+        (
+            lambda text, data: json.dumps(
+                {**data, "env": {**data["env"], "reward": {**data["env"]["reward"], "forward_sigma": 0}}}
+            ),
+            "env.reward.forward_sigma",
+        ),
+    ],
+)
+def test_damaged_run_config_is_an_error_naming_the_file_and_key_regression(tmp_path, damage, message):
+    # Regression (issue 13, item 4): a corrupt or incomplete config.json ended in a KeyError or
+    # JSONDecodeError traceback that named neither the file nor the key.
+    legacy = (ROOT / "tests" / "data" / "legacy_run" / "config.json").read_text()
+    (tmp_path / "config.json").write_text(damage(legacy, json.loads(legacy)))
+    with pytest.raises(ValueError, match=message) as info:
+        training.load_run_config(tmp_path)
+    assert str(tmp_path / "config.json") in str(info.value)
+
+
+def _without(d, key):
+    return {k: v for k, v in d.items() if k != key}
+
+
+@pytest.mark.parametrize(
+    "args, key",
+    [
+        (["--ppo.episode_length=-5"], "ppo.episode_length"),
+        (["--env.terrain=moon"], "env.terrain"),
+    ],
+)
+def test_script_bad_values_exit_2_naming_the_key_regression(tmp_path, args, key):
+    # Regression (issue 13, item 4): episode_length=-5 failed deep in XLA, terrain=moon in the model
+    # builder, both with a traceback. Now: exit 2, one line naming the key, nothing written.
+    out = subprocess.run(_script(tmp_path / "r", *args), capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert key in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "r").exists()
+
+
+def test_script_resume_of_a_damaged_config_exits_2_naming_the_file_regression(tmp_path):
+    run = tmp_path / "r"
+    run.mkdir()
+    (run / "config.json").write_text('{"env": {"terrain": "fl')
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "train" / "ppo_mjx.py"), "--resume", str(run)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert str(run / "config.json") in out.stderr and "not valid JSON" in out.stderr
 
 
 def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):

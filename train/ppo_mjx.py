@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from quadson_mjx import training  # noqa: E402
 from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
+from quadson_mjx.env_config import check_env_config, env_config  # noqa: E402
 
 ENV_PRESETS = {
     "seed": {},
@@ -78,6 +78,11 @@ def main(argv=None) -> int:
             print("--resume takes the run's saved configs; overrides are not allowed", file=sys.stderr)
             return 2
         run_dir = Path(args.resume)
+        try:
+            training.load_run_config(run_dir)  # the same checks train() makes, as a usage error
+        except (ValueError, OSError) as e:
+            print(f"error: cannot resume {run_dir}: {e}", file=sys.stderr)
+            return 2
         env_cfg = ppo_cfg = None
     else:
         on_gpu = jax.default_backend() == "gpu"
@@ -91,11 +96,13 @@ def main(argv=None) -> int:
             ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
             env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
             ppo_cfg = apply_overrides(training.ppo_config(preset), ppo_over, prefix="ppo.")
+            check_env_config(env_cfg)
             training.check_ppo_config(ppo_cfg)
-        except ValueError as e:
+            run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
+            training.check_new_run_dir(run_dir)
+        except (ValueError, FileExistsError) as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
-        run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
     print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
     t0 = time.monotonic()
     try:
