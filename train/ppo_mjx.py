@@ -63,8 +63,8 @@ def parse(argv):
 
 
 def _terminate(signum, frame):
-    """SIGTERM (a cluster scheduler's preemption, `kill`) ends the run like Ctrl-C: log closed,
-    newest checkpoint kept, resumable."""
+    """SIGTERM (a cluster scheduler's preemption, `kill`) ends the script like Ctrl-C. While
+    `training.train` runs it defers both to its next safe point (log closed, state saved)."""
     raise KeyboardInterrupt(f"signal {signum}")
 
 
@@ -79,7 +79,8 @@ def main(argv=None) -> int:
             return 2
         run_dir = Path(args.resume)
         try:
-            training.load_run_config(run_dir)  # the same checks train() makes, as a usage error
+            # the checks train() makes, answered as a usage error
+            training.resume_point(run_dir, training.load_run_config(run_dir)[1])
         except (ValueError, OSError) as e:
             print(f"error: cannot resume {run_dir}: {e}", file=sys.stderr)
             return 2
@@ -108,12 +109,15 @@ def main(argv=None) -> int:
     try:
         _, _, metrics = training.train(env_cfg, ppo_cfg, run_dir, resume=bool(args.resume))
     except KeyboardInterrupt:
-        print(
-            f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable; the newest checkpoint is"
-        )
-        print(
-            f"in {run_dir / training.CHECKPOINT_DIR}. Continue with: python train/ppo_mjx.py --resume {run_dir}"
-        )
+        print(f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable.")
+        if (run_dir / "config.json").exists():
+            try:
+                where = f"from its checkpoint at step {training.latest_checkpoint(run_dir)[1]:,}"
+            except FileNotFoundError:
+                where = "from step 0 (no checkpoint yet)"
+            print(f"Continue {where} with: python train/ppo_mjx.py --resume {run_dir}")
+        else:
+            print("Nothing was saved yet: run the same command again.")
         return 130
     print(f"\ndone in {time.monotonic() - t0:.0f} s")
     for key in ("eval/episode_reward", "eval/mean_forward_speed", "eval/avg_episode_length"):
