@@ -4,11 +4,16 @@ works around, measured, and the upstream issue where one exists, so it can be de
 * `patch_brax`: `jax.device_put_replicated`, removed from jax, still called by brax PPO.
 * `brax_multi_device`: brax's `jax.pmap` as one sharded `jit` (jax's pmap crashes XLA on two GPUs).
 * `brax_evaluator_compiles_once`: brax's evaluator compiled twice per run.
+* `brax_training_state`: brax PPO's whole training state (optimiser moments, step count, RNG,
+  environment states) saved and restored at evaluations; brax's own checkpoints keep only the
+  parameters, so a resumed run restarts Adam's moments (google/brax issue #655).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+from collections.abc import Callable
 
 import jax
 import numpy as np
@@ -138,3 +143,128 @@ def brax_evaluator_compiles_once():
         yield
     finally:
         acting.Evaluator = original
+
+
+def brax_epoch_keys(seed: int, epoch: int, devices: int, process_id: int = 0) -> jax.Array:
+    """The PRNG keys brax 0.14.2's `ppo.train(seed=seed)` passes to its training epoch number
+    `epoch` (0-based), (devices, 2) uint32: its key derivation, step by step, so that a resumed
+    run can continue the key sequence where the interrupted one stopped.
+    (tests/test_training.py checks these against the keys brax passes.)"""
+    _, local_key = jax.random.split(jax.random.PRNGKey(seed))
+    local_key = jax.random.fold_in(local_key, process_id)
+    local_key, _, _ = jax.random.split(local_key, 3)
+    for _ in range(epoch + 1):
+        epoch_key, local_key = jax.random.split(local_key)
+    return jax.random.split(epoch_key, devices)
+
+
+@dataclasses.dataclass
+class BraxTrainingState:
+    """What `brax_training_state` saw and what it restores (see there).
+
+    first_epoch: global index of the first training epoch of this session (0: a fresh run).
+    restore_training_state: leaves of brax's TrainingState (one device's copy) to start from.
+    restore_env_state: leaves of the batched environment state to start from (optional).
+    epoch_keys: epoch -> keys, used from first_epoch on when first_epoch > 0.
+    checkpoint: called before every training epoch and evaluation (a place to stop at).
+    """
+
+    first_epoch: int = 0
+    restore_training_state: list | None = None
+    restore_env_state: list | None = None
+    epoch_keys: Callable[[int], jax.Array] | None = None
+    checkpoint: Callable[[], None] = lambda: None
+    epochs_done: int = 0
+    keys_seen: list = dataclasses.field(default_factory=list)
+    latest: tuple | None = None  # (training_state, env_state) after the last epoch, until the next
+
+    def training_state_leaves(self) -> list[np.ndarray]:
+        """One device's copy of the TrainingState after the last epoch, as numpy leaves."""
+        return [np.asarray(leaf[0]) for leaf in jax.tree.leaves(self.latest[0])]
+
+    def env_state_leaves(self) -> list[np.ndarray]:
+        """The whole batched environment state after the last epoch (every device), numpy leaves."""
+        return [np.asarray(leaf) for leaf in jax.tree.leaves(self.latest[1])]
+
+    def _wrap(self, epoch_fn):
+        def call(training_state, env_state, keys):
+            self.checkpoint()
+            self.latest = None  # drop references to buffers that this call donates
+            if self.epochs_done == 0:
+                if self.restore_training_state is not None:
+                    training_state = _replace_leaves(training_state, self.restore_training_state, True)
+                if self.restore_env_state is not None:
+                    env_state = _replace_leaves(env_state, self.restore_env_state, False)
+            if self.first_epoch > 0:
+                keys = self.epoch_keys(self.first_epoch + self.epochs_done)
+            self.keys_seen.append(np.asarray(keys))
+            out = epoch_fn(training_state, env_state, keys)
+            self.epochs_done += 1
+            self.latest = (out[0], out[1])
+            return out
+
+        return call
+
+
+def _replace_leaves(tree, leaves, replicated: bool):
+    """`tree` with its leaves replaced by numpy `leaves`, placed like the leaves they replace.
+
+    replicated: each new leaf is one device's copy, stacked over the leading device axis;
+    otherwise it holds every device's part and is reshaped to the replaced leaf's shape (so a run
+    resumed on another number of devices splits the same environments differently).
+    """
+    old, treedef = jax.tree.flatten(tree)
+    if len(old) != len(leaves):
+        raise ValueError(f"saved state has {len(leaves)} arrays, this run's has {len(old)}")
+    new = []
+    for i, (o, n) in enumerate(zip(old, leaves, strict=True)):
+        n = np.asarray(n)
+        shape_ok = n.shape == o.shape[1:] if replicated else n.size == o.size
+        if not shape_ok or n.dtype != o.dtype:
+            raise ValueError(
+                f"saved state array {i} is {n.dtype}{list(n.shape)}, this run's is {o.dtype}{list(o.shape)}"
+            )
+        n = np.broadcast_to(n, o.shape) if replicated else n.reshape(o.shape)
+        new.append(jax.device_put(n, o.sharding))
+    return jax.tree.unflatten(treedef, new)
+
+
+@contextlib.contextmanager
+def brax_training_state(state: BraxTrainingState, eval_offset: int = 0):
+    """While active, brax PPO's training epoch and evaluator are wrapped so that the whole training
+    state can be saved at an evaluation and restored on resume, without forking `ppo.train`:
+
+    * brax builds its epoch with `jax.pmap(training_epoch, ...)`; that one call gets a wrapper
+      that records the epoch's output (TrainingState: params, normaliser, Adam's moments, env step
+      count; and the batched environment states), replaces the first epoch's inputs by the saved
+      ones, and hands out the keys of the right global epoch (`brax_epoch_keys`);
+    * `acting.Evaluator` starts `eval_offset` evaluations into its key sequence, so the resumed
+      run's evaluations draw the same keys as the uninterrupted run's.
+
+    Save `state.training_state_leaves()` (and `env_state_leaves()`) from brax's
+    `policy_params_fn` or after an interruption: between two epochs `state.latest` is alive.
+    Nest inside `brax_multi_device` (this wraps whatever `jax.pmap` is at entry).
+    """
+    from brax.training import acting
+
+    original_pmap, original_evaluator = jax.pmap, acting.Evaluator
+
+    def pmap(fun, *args, **kwargs):
+        compiled = original_pmap(fun, *args, **kwargs)
+        return state._wrap(compiled) if getattr(fun, "__name__", "") == "training_epoch" else compiled
+
+    class Evaluator(original_evaluator):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            for _ in range(eval_offset):  # run_evaluation splits its key once per evaluation
+                self._key, _ = jax.random.split(self._key)
+
+        def run_evaluation(self, *args, **kwargs):
+            state.checkpoint()
+            return super().run_evaluation(*args, **kwargs)
+
+    jax.pmap, acting.Evaluator = pmap, Evaluator
+    try:
+        yield state
+    finally:
+        jax.pmap, acting.Evaluator = original_pmap, original_evaluator

@@ -97,6 +97,51 @@ def apply_overrides(cfg: ConfigDict, overrides: Iterable[str], prefix: str = "")
     return out
 
 
+def conform(data: Mapping, reference: ConfigDict, prefix: str, source: str) -> ConfigDict:
+    """`data` (e.g. a section of a run's config.json) checked against `reference` (the factory's
+    config): every key present, none unknown, each value of the reference's type (an int where a
+    float is expected is accepted; lists become tuples). Raises ValueError naming `source` (the
+    file) and the key as `prefix + key`. Returns a locked ConfigDict.
+    """
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{source}: '{prefix.rstrip('.')}' must be an object, got {type(data).__name__}")
+    out = {}
+    unknown = [prefix + k for k in sorted(set(data) - set(reference.keys()))]
+    if unknown:
+        raise ValueError(f"{source}: unknown config keys {unknown} (written by another version?)")
+    for key, ref in reference.items():
+        name = prefix + key
+        if key not in data:
+            raise ValueError(f"{source}: config key '{name}' is missing (the file is incomplete or damaged)")
+        value = data[key]
+        if isinstance(ref, ConfigDict | Mapping):
+            out[key] = conform(value, ml_collections.ConfigDict(ref), name + ".", source).to_dict()
+            continue
+        if isinstance(ref, tuple | list) and isinstance(value, list):
+            value = tuple(value)
+        ok = type(value) is type(ref)
+        if isinstance(ref, float) and type(value) is int:
+            value, ok = float(value), True
+        if isinstance(ref, tuple) and ok:
+            if key in LAYER_SIZE_KEYS:
+                ok = bool(value) and all(type(v) is int and v > 0 for v in value)
+            else:
+                ok = len(value) == len(ref) and all(
+                    type(v) is type(r) or (type(r) is float and type(v) is int)
+                    for v, r in zip(value, ref, strict=True)
+                )
+                if ok:
+                    value = tuple(
+                        float(v) if type(r) is float else v for v, r in zip(value, ref, strict=True)
+                    )
+        if not ok:
+            raise ValueError(f"{source}: config key '{name}' should be like {ref!r}, got {data[key]!r}")
+        out[key] = value
+    cfg = ml_collections.ConfigDict(out)
+    cfg.lock()
+    return cfg
+
+
 def freeze(cfg: ConfigDict) -> ml_collections.FrozenConfigDict:
     return ml_collections.FrozenConfigDict(cfg)
 

@@ -199,3 +199,73 @@ def env_config(
         cfg.reward.weights.update(JOYSTICK_WEIGHTS)
     cfg.lock()
     return cfg
+
+
+def _number(key: str, value, ok, what: str) -> float:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or not ok(value)
+    ):
+        raise ValueError(f"env.{key} must be {what}, got {value!r}")
+    return value
+
+
+def _walk(cfg, prefix: str = ""):
+    for k, v in cfg.items():
+        if isinstance(v, ml_collections.ConfigDict | dict):
+            yield from _walk(v, f"{prefix}{k}.")
+        else:
+            yield f"{prefix}{k}", v
+
+
+def check_env_config(cfg) -> None:
+    """Raises ValueError naming the key (as `env.KEY`) for a value the environment would misread.
+
+    Every number must be finite; (low, high) ranges need low <= high; kernel widths, time steps
+    and durations must be positive, scales and noise non-negative; names must be known.
+    """
+    from quadson_mjx.swing import SWING_SHAPES
+
+    for key, value in _walk(cfg):
+        values = value if isinstance(value, tuple | list) else (value,)
+        for v in values:
+            if isinstance(v, int | float) and not isinstance(v, bool) and not math.isfinite(v):
+                raise ValueError(f"env.{key} must be finite, got {value!r}")
+        head = key.split(".")[0]
+        if head in ("command_range", "randomization", "push") and isinstance(value, tuple | list):
+            if len(value) != 2 or not value[0] <= value[1]:
+                raise ValueError(f"env.{key} must be a (low, high) range with low <= high, got {value!r}")
+    if cfg.terrain not in ("flat", "rough"):
+        raise ValueError(f"env.terrain is {cfg.terrain!r}; choose 'flat' or 'rough'")
+    if cfg.gait not in GAIT_NAMES:
+        raise ValueError(f"env.gait is {cfg.gait!r}; choose from {list(GAIT_NAMES)}")
+    if cfg.swing not in SWING_SHAPES:
+        raise ValueError(f"env.swing is {cfg.swing!r}; choose from {list(SWING_SHAPES)}")
+    positive = lambda v: v > 0  # noqa: E731
+    non_negative = lambda v: v >= 0  # noqa: E731
+    for key, ok, what in (
+        ("ctrl_dt", positive, "> 0 s"),
+        ("episode_length_s", lambda v: v >= cfg.ctrl_dt, f">= ctrl_dt ({cfg.ctrl_dt} s)"),
+        ("gait_ramp_s", positive, "> 0 s"),
+        ("action_scale_m", non_negative, ">= 0 m"),
+        ("gait_action_range", lambda v: 0 <= v < 1, "in [0, 1) (the scale 1 +- range must stay > 0)"),
+        ("reward.forward_sigma", positive, "> 0 m/s (a kernel width)"),
+        ("reward.tracking_sigma", positive, "> 0 (a kernel width)"),
+        ("reward.height_target", positive, "> 0 m"),
+        ("termination.max_tilt_rad", lambda v: 0 < v <= math.pi, "in (0, pi] rad"),
+    ):
+        node, leaf = cfg, key
+        while "." in leaf:
+            head, leaf = leaf.split(".", 1)
+            node = node[head]
+        _number(key, node[leaf], ok, what)
+    for key in ("rpy", "lin_vel", "ang_vel", "motor_pos"):
+        _number(f"noise.{key}", cfg.noise[key], non_negative, ">= 0")
+    r = cfg.randomization
+    for key in ("friction", "mass_scale", "motor_strength"):
+        _number(f"randomization.{key}", r[key][0], positive, "a range of values > 0 (its low end)")
+    _number("randomization.latency_s", r.latency_s[0], non_negative, "a range of values >= 0 s")
+    _number("push.interval_s", cfg.push.interval_s[0], positive, "a range of values > 0 s (its low end)")
+    _number("push.speed_mps", cfg.push.speed_mps[0], non_negative, "a range of values >= 0 m/s")

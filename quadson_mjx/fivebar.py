@@ -201,6 +201,7 @@ def within_limits(angles: jax.Array) -> jax.Array:
 
 # Why an IK target is rejected, in the order `leg_ik_checked` reports them.
 IK_CHECKS: tuple[str, ...] = (
+    "not a finite number (NaN or infinite coordinate)",
     "out of reach of the p1-p2-foot chain",
     "out of reach of the p5-p4-p3 chain",
     "t0 beyond its joint limit",
@@ -211,8 +212,22 @@ IK_CHECKS: tuple[str, ...] = (
 )
 
 
+# Targets are clipped to +-IK_CLIP_M per coordinate before solving: the leg reaches
+# L1 + L2 + L3 = 0.26 m, so a clipped target is out of reach either way, and its squares stay far
+# from float32 overflow (a 1e30 m target would square to inf and give NaN angles).
+IK_CLIP_M = 1.0
+
+
 def _ik_solve(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Algorithm 2 with its failure flags: foot (..., 3) [m] -> angles (..., 3), ok (..., len(IK_CHECKS))."""
+    """Algorithm 2 with its failure flags: foot (..., 3) [m] -> angles (..., 3), ok (..., len(IK_CHECKS)).
+
+    A non-finite target is solved as the home stance's foot (finite angles, flagged not ok).
+    """
+    if foot.shape[-1:] != (3,):
+        raise ValueError(f"foot must have shape (..., 3) [m], got {foot.shape}")
+    finite = jnp.all(jnp.isfinite(foot), axis=-1)
+    home = leg_fk(jnp.asarray(C.INITIAL_MOTOR_ANGLES, foot.dtype))
+    foot = jnp.clip(jnp.where(finite[..., None], foot, home), -IK_CLIP_M, IK_CLIP_M)
     x, y, z = foot[..., 0], foot[..., 1], foot[..., 2]
     # Step 1-2: the sign of robots.md. With t0 = -atan2(z, -y), the in-plane
     # y' = y cos t0 + z sin t0 is exactly -sqrt(y^2 + z^2): the foot below the motor axis.
@@ -256,6 +271,7 @@ def _ik_solve(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
     tol = 64 * jnp.finfo(foot.dtype).eps * C.L2 * (C.L2 + C.L4)
     ok = jnp.stack(
         [
+            finite,
             jnp.abs(c12) <= 1.0,
             jnp.abs(c354) <= 1.0,
             in_range[..., 0],
@@ -277,8 +293,11 @@ def leg_ik(foot: jax.Array) -> tuple[jax.Array, jax.Array]:
     (constants.MOTOR_RANGES), violates the toe-in guard or would need the other assembly mode.
 
     Never NaN: acos arguments are clamped to [-1, 1], so an out-of-reach target gets the nearest
-    clamped configuration (the chain stretched or folded toward it); angles beyond a joint limit
-    are returned as computed, not clipped. Gradients are finite everywhere (see `_sin_acos`).
+    clamped configuration (the chain stretched or folded toward it); coordinates beyond
+    +-IK_CLIP_M are clipped first (out of reach anyway); a NaN or infinite target gets the home
+    stance's angles (constants.INITIAL_MOTOR_ANGLES). All of these are valid=False. Angles beyond a
+    joint limit are returned as computed, not clipped. Gradients are finite everywhere (see
+    `_sin_acos`). A last axis other than 3 raises ValueError (shapes are static, also under jit).
     """
     foot = jnp.asarray(foot)
     if not jnp.issubdtype(foot.dtype, jnp.floating):

@@ -1,28 +1,59 @@
-"""Validate an MCAP file, or recover the readable part of a truncated one.
+"""Validate an MCAP file, or recover the readable part of a damaged or truncated one.
 
     python -m quadson_mjx.mcap_check FILE [--expect-topic /tf ...] [--rollout] [--recover OUT]
 
-A complete file is read through its summary (the seeking reader) and its chunk CRCs are checked; a
-file whose writer was killed has no summary, so it is read front to back with the non-seeking reader,
-which yields every message of every complete chunk and stops at the first damaged record. The
-report names the topics, schemas, message counts and time range; `--recover OUT` writes the readable
-messages into a new, complete file; `--rollout` expects every topic of a rollout file
-(quadson_mjx.foxglove_mcap). `decode` turns a message (JSON or Foxglove protobuf) into a dict. Exit status: 0 valid, 1 readable only in part (truncated),
-2 unreadable or missing an expected topic.
+The file is walked record by record (opcode, length, body), and each record is parsed on its own by
+the mcap library: a record that fails (a chunk whose CRC does not match or that does not
+decompress, an attachment whose CRC does not match, a record cut short) is reported with its byte
+offset and skipped, and reading goes on with the next record, so messages after a damaged chunk
+are kept. Where a damaged length field leaves the walk out of step, it resumes at the next place
+where two consecutive records parse. CRCs checked: every chunk's, every attachment's, the summary
+section's and the data section's (where the writer stored them; 0 means none). Records without a
+CRC (metadata, a chunk's uncompressed bytes' framing) are checked only in that they parse.
+
+A file is complete when nothing was damaged and its summary (written by a writer that finished) is
+present and agrees with the messages read. The report names the topics, schemas, message counts,
+time range, metadata, attachments and every damaged record. `--recover OUT` writes a new, complete
+file with every readable message (schemas and channels kept), metadata record and intact attachment;
+OUT must not exist and is written whole or not at all. `--rollout` expects every topic of a rollout
+file (quadson_mjx.foxglove_mcap). `decode` turns a message (JSON or Foxglove protobuf) into a dict.
+Exit status: 0 valid, 1 readable only in part (damaged or truncated), 2 unreadable, missing an
+expected topic, or a usage error (such as an OUT that exists).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import struct
 import sys
+import zlib
 from collections import Counter
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 
-from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader, make_reader
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    Message,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
 ROLLOUT_TOPICS = ("/tf", "/scene", "/joint_states", "/odom", "/imu", "/rollout/step", "/log")
@@ -61,6 +92,154 @@ def _to_dict(msg) -> dict:
     return MessageToDict(msg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
 
 
+MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEADER = 9  # opcode (1 byte) + length (uint64)
+
+
+@dataclass
+class Contents:
+    """Everything readable in a file, in file order (see `read_contents`)."""
+
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    messages: list[Message] = field(default_factory=list)
+    metadata: list[Metadata] = field(default_factory=list)
+    attachments: list[Attachment] = field(default_factory=list)
+    damaged: list[str] = field(default_factory=list)  # "offset N: RECORD: why", in file order
+    statistics: Statistics | None = None
+    footer: Footer | None = None
+    profile: str = ""
+
+
+def _parse(opcode: int, body: bytes):
+    """One top-level record's body -> list of records (a chunk's inner records); raises if damaged."""
+    stream = ReadDataStream(BytesIO(body))
+    if opcode == Opcode.CHUNK:
+        return breakup_chunk(Chunk.read(stream), validate_crc=True)
+    if opcode == Opcode.ATTACHMENT:
+        record = Attachment.read(stream)
+        (crc,) = struct.unpack_from("<I", body, len(body) - 4)
+        if crc != 0 and zlib.crc32(body[:-4]) != crc:
+            raise ValueError(f"attachment {record.name!r}: CRC mismatch (stored {crc:#010x})")
+        return [record]
+    reader = {
+        Opcode.HEADER: Header.read,
+        Opcode.FOOTER: Footer.read,
+        Opcode.SCHEMA: Schema.read,
+        Opcode.CHANNEL: Channel.read,
+        Opcode.MESSAGE: lambda st: Message.read(st, len(body)),
+        Opcode.MESSAGE_INDEX: MessageIndex.read,
+        Opcode.CHUNK_INDEX: ChunkIndex.read,
+        Opcode.ATTACHMENT_INDEX: AttachmentIndex.read,
+        Opcode.STATISTICS: Statistics.read,
+        Opcode.METADATA: Metadata.read,
+        Opcode.METADATA_INDEX: MetadataIndex.read,
+        Opcode.SUMMARY_OFFSET: SummaryOffset.read,
+        Opcode.DATA_END: DataEnd.read,
+    }.get(opcode)
+    if reader is None:
+        raise ValueError(f"unknown opcode {opcode:#04x}")
+    return [reader(stream)]
+
+
+def _record_at(data: bytes, pos: int):
+    """(opcode, body, records) of the record at `pos`; raises ValueError if it is not a whole,
+    parseable record."""
+    if pos + _RECORD_HEADER > len(data):
+        raise ValueError(f"record header cut short: the file ends {len(data) - pos} bytes after it starts")
+    opcode = data[pos]
+    (length,) = struct.unpack_from("<Q", data, pos + 1)
+    end = pos + _RECORD_HEADER + length
+    name = _opcode_name(opcode)
+    if end > len(data):
+        raise ValueError(f"{name} of {length} bytes cut short: the file ends {end - len(data)} bytes early")
+    body = data[pos + _RECORD_HEADER : end]
+    try:
+        return opcode, body, _parse(opcode, body)
+    except Exception as e:  # the mcap library, zstandard and struct raise many types on bad bytes
+        raise ValueError(f"{name}: {type(e).__name__}: {e}") from None
+
+
+def _opcode_name(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name
+    except ValueError:
+        return f"opcode {opcode:#04x}"
+
+
+def _resync(data: bytes, pos: int) -> int | None:
+    """The first offset after `pos` where a record and the one after it both parse, or None."""
+    for p in range(pos + 1, len(data) - _RECORD_HEADER):
+        if data[p] not in _KNOWN_OPCODES:
+            continue
+        try:
+            opcode, body, _ = _record_at(data, p)
+            nxt = p + _RECORD_HEADER + len(body)
+            if opcode != Opcode.FOOTER and data[nxt:] != MAGIC:
+                _record_at(data, nxt)
+            return p
+        except ValueError:
+            continue
+    return None
+
+
+_KNOWN_OPCODES = {int(o) for o in Opcode}
+
+
+def read_contents(path: str | Path) -> Contents:
+    """Walks every record of `path` (see the module docstring); never raises on damaged bytes."""
+    data = Path(path).read_bytes()
+    out = Contents()
+    if not data.startswith(MAGIC):
+        out.damaged.append("offset 0: not an MCAP file (the magic bytes are missing)")
+        return out
+    pos, data_end = len(MAGIC), None
+    while pos < len(data):
+        try:
+            opcode, body, records = _record_at(data, pos)
+        except ValueError as e:
+            out.damaged.append(f"offset {pos}: {e}")
+            nxt = _resync(data, pos)
+            if nxt is None:
+                break
+            out.damaged[-1] += f"; {nxt - pos} bytes skipped"
+            pos = nxt
+            continue
+        for r in records:
+            if isinstance(r, Header):
+                out.profile = r.profile
+            elif isinstance(r, Schema):
+                out.schemas[r.id] = r
+            elif isinstance(r, Channel):
+                out.channels[r.id] = r
+            elif isinstance(r, Message):
+                out.messages.append(r)
+            elif isinstance(r, Metadata):
+                out.metadata.append(r)
+            elif isinstance(r, Attachment):
+                out.attachments.append(r)
+            elif isinstance(r, Statistics):
+                out.statistics = r
+            elif isinstance(r, DataEnd):
+                data_end = r
+                if r.data_section_crc and zlib.crc32(data[:pos]) != r.data_section_crc:
+                    out.damaged.append(f"offset {pos}: DATA_END: data section CRC mismatch")
+            elif isinstance(r, Footer):
+                out.footer = r
+                summary_crc_end = pos + _RECORD_HEADER + 16  # through summary_offset_start
+                start = r.summary_start or pos
+                if r.summary_crc and zlib.crc32(data[start:summary_crc_end]) != r.summary_crc:
+                    out.damaged.append(f"offset {pos}: FOOTER: summary section CRC mismatch")
+        pos += _RECORD_HEADER + len(body)
+        if opcode == Opcode.FOOTER:
+            if data[pos:] != MAGIC:
+                out.damaged.append(f"offset {pos}: the closing magic bytes are missing or damaged")
+            break
+    if out.footer is None and data_end is None and not out.damaged:
+        out.damaged.append(f"offset {len(data)}: the file ends without a summary (the writer did not finish)")
+    return out
+
+
 def read_messages(path: str | Path, topics=None) -> list[tuple[str, int, dict]]:
     """(topic, log_time_ns, decoded message) of every readable message of `path` (of `topics`)."""
     out = []
@@ -76,20 +255,30 @@ def read_messages(path: str | Path, topics=None) -> list[tuple[str, int, dict]]:
 @dataclass
 class Report:
     path: str
-    complete: bool = False  # summary present and every CRC valid
+    complete: bool = False  # summary present, nothing damaged, every CRC valid
     counts: Counter = field(default_factory=Counter)
     schemas: dict[str, str] = field(default_factory=dict)  # topic -> schema name
     start_ns: int | None = None
     end_ns: int | None = None
-    error: str | None = None
+    error: str | None = None  # the first problem found
+    damaged: list[str] = field(default_factory=list)  # every problem found
+    lost_messages: int = 0  # messages whose channel definition was in a damaged record
     metadata: list[str] = field(default_factory=list)
     attachments: list[str] = field(default_factory=list)
 
     def lines(self) -> list[str]:
         state = "complete" if self.complete else "TRUNCATED/DAMAGED (readable part only)"
         out = [f"{self.path}: {state}"]
-        if self.error:
+        for problem in self.damaged[:20]:
+            out.append(f"  damaged: {problem}")
+        if len(self.damaged) > 20:
+            out.append(f"  ... and {len(self.damaged) - 20} more damaged records")
+        if self.error and not self.damaged:
             out.append(f"  stopped at: {self.error}")
+        if self.lost_messages:
+            out.append(
+                f"  {self.lost_messages} messages unreadable: their channel was defined in a damaged record"
+            )
         if self.start_ns is not None:
             out.append(f"  time: {self.start_ns / 1e9:.3f} .. {self.end_ns / 1e9:.3f} s")
         for topic in sorted(self.counts):
@@ -101,9 +290,16 @@ class Report:
         return out
 
 
-def _scan(stream, report: Report, sink=None) -> None:
-    reader = NonSeekingReader(stream, validate_crcs=True)
-    for schema, channel, message in reader.iter_messages(log_time_order=False):
+def _report(path, contents: Contents, sink=None) -> Report:
+    report = Report(str(path), damaged=list(contents.damaged))
+    report.metadata = [m.name for m in contents.metadata]
+    report.attachments = [a.name for a in contents.attachments]
+    for message in contents.messages:
+        channel = contents.channels.get(message.channel_id)
+        if channel is None:
+            report.lost_messages += 1
+            continue
+        schema = contents.schemas.get(channel.schema_id)
         report.counts[channel.topic] += 1
         report.schemas[channel.topic] = schema.name if schema else ""
         t = message.log_time
@@ -111,40 +307,24 @@ def _scan(stream, report: Report, sink=None) -> None:
         report.end_ns = t if report.end_ns is None else max(report.end_ns, t)
         if sink is not None:
             sink(schema, channel, message)
+    stats = contents.statistics
+    if stats is not None and not report.damaged:
+        by_topic = {contents.channels[c].topic: n for c, n in stats.channel_message_counts.items() if n}
+        if by_topic != dict(report.counts):
+            report.damaged.append(f"summary counts {by_topic} differ from the messages read")
+    if contents.footer is None and not report.damaged:
+        report.damaged.append("no summary section (writer did not finish)")
+    report.error = report.damaged[0] if report.damaged else None
+    report.complete = not report.damaged and not report.lost_messages
+    return report
 
 
 def check(path: str | Path, sink=None) -> Report:
     """Reads every readable message of `path`; sink(schema, channel, message) sees each one."""
     path = Path(path)
-    report = Report(str(path))
     if not path.exists():
-        report.error = "file does not exist"
-        return report
-    with open(path, "rb") as f:
-        try:
-            _scan(f, report, sink)
-        except (McapError, EOFError, ValueError, OSError, struct.error) as e:
-            report.error = f"{type(e).__name__}: {e}"
-            return report
-    with open(path, "rb") as f:
-        try:
-            reader = make_reader(f)
-            summary = reader.get_summary()
-            if summary is None:
-                report.error = "no summary section (writer did not finish)"
-                return report
-            report.metadata = [m.name for m in reader.iter_metadata()]
-            report.attachments = [a.name for a in reader.iter_attachments()]
-            stats = summary.statistics
-            if stats is not None:
-                by_topic = {summary.channels[cid].topic: n for cid, n in stats.channel_message_counts.items()}
-                if by_topic != dict(report.counts):
-                    report.error = f"summary counts {by_topic} differ from the messages read"
-                    return report
-            report.complete = True
-        except (McapError, EOFError, ValueError, OSError, struct.error) as e:
-            report.error = f"{type(e).__name__}: {e}"
-    return report
+        return Report(str(path), error="file does not exist", damaged=["file does not exist"])
+    return _report(path, read_contents(path), sink)
 
 
 def recover_messages(path: str | Path) -> list[tuple[str, int, dict]]:
@@ -160,10 +340,25 @@ def recover_messages(path: str | Path) -> list[tuple[str, int, dict]]:
 
 
 def recover(path: str | Path, out_path: str | Path) -> Report:
-    """Copies every readable message (any encoding, schemas kept) of `path` into a complete file."""
-    with open(out_path, "wb") as f:
+    """Writes every readable message (schemas and channels kept), metadata record and intact
+    attachment of `path` into a new, complete file `out_path`.
+
+    Refuses (FileExistsError) an `out_path` that exists, the input included: recovery never
+    overwrites. The input is read whole before anything is written, and the output goes to a
+    temporary file renamed into place at the end, so an interrupted recovery leaves no half file.
+    """
+    path, out_path = Path(path), Path(out_path)
+    if out_path.exists() or out_path.is_symlink():
+        same = path.exists() and out_path.exists() and out_path.samefile(path)
+        what = "is the input file" if same else "exists"
+        raise FileExistsError(
+            f"{out_path} {what}; --recover writes a new file: choose another name or remove it"
+        )
+    contents = read_contents(path) if path.exists() else Contents(damaged=["file does not exist"])
+    tmp = out_path.with_name(out_path.name + ".partial")
+    with open(tmp, "wb") as f:
         writer = Writer(f)
-        writer.start(profile="", library="quadson_mjx.mcap_check")
+        writer.start(profile=contents.profile, library="quadson_mjx.mcap_check")
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, int] = {}
 
@@ -187,8 +382,13 @@ def recover(path: str | Path, out_path: str | Path) -> Report:
                 message.sequence,
             )
 
-        report = check(path, sink)
+        report = _report(path, contents, sink)
+        for m in contents.metadata:
+            writer.add_metadata(m.name, dict(m.metadata))
+        for a in contents.attachments:
+            writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
         writer.finish()
+    os.replace(tmp, out_path)
     return report
 
 
@@ -197,12 +397,24 @@ def main(argv=None) -> int:
     p.add_argument("file")
     p.add_argument("--expect-topic", action="append", default=[], help="fail unless this topic has messages")
     p.add_argument("--rollout", action="store_true", help="expect every topic of a rollout file")
-    p.add_argument("--recover", metavar="OUT", help="write the readable messages to a new complete file")
+    p.add_argument("--recover", metavar="OUT", help="write the readable contents to OUT, a new complete file")
     args = p.parse_args(argv)
     if args.rollout:
         args.expect_topic += [t for t in ROLLOUT_TOPICS if t not in args.expect_topic]
-    report = recover(args.file, args.recover) if args.recover else check(args.file)
+    if args.recover:
+        try:
+            report = recover(args.file, args.recover)
+        except FileExistsError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+    else:
+        report = check(args.file)
     print("\n".join(report.lines()))
+    if args.recover:
+        print(
+            f"recovered into {args.recover}: {sum(report.counts.values())} messages, "
+            f"{len(report.metadata)} metadata records, {len(report.attachments)} attachments"
+        )
     missing = [t for t in args.expect_topic if report.counts.get(t, 0) == 0]
     if missing:
         print(f"missing expected topics: {', '.join(missing)}")

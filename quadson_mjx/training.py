@@ -7,13 +7,14 @@ writes one run directory:
     run_dir/train.mcap               every evaluation's metrics (/train/metrics), events (/train/log),
                                      configs and versions as metadata, the MJCF as an attachment
     run_dir/checkpoints/step_*.msgpack  (normaliser, policy, value) params at every evaluation
+    run_dir/checkpoints/state_*.npz     brax's whole TrainingState (+ Adam's moments, step count)
+    run_dir/checkpoints/env_state_*.npz the environments' states, when stopped by a signal
     run_dir/checkpoints/latest       name of the newest checkpoint
 
 Checkpoints are written atomically (temp file + rename), so a killed run never leaves a half file
-behind as its newest. `--resume RUN_DIR` restores the newest checkpoint's parameters and
-normaliser, trains the remaining steps and keeps appending to the same train.mcap (messages of a
-killed run's file are recovered first). The optimiser's moments are not in brax's restorable state
-and restart from zero.
+behind as its newest. `--resume RUN_DIR` restores the whole training state and continues the run
+as if it had not stopped (see `train`); the previous log is kept beside the new one, which starts
+with its readable contents. SIGINT and SIGTERM stop a run at the next safe point (see `train`).
 
 Several local GPUs: brax splits environments and batches over them; `compat.brax_multi_device`
 compiles brax's per-device functions as one sharded jit (ppo.multi_device, ppo.max_devices).
@@ -24,10 +25,13 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import platform
+import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -36,7 +40,7 @@ import jax
 import ml_collections
 import numpy as np
 
-from quadson_mjx.config import from_json, to_json
+from quadson_mjx.config import to_json
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -131,8 +135,15 @@ def local_devices_to_use(cfg) -> int:
     return min(n, cfg.max_devices) if cfg.max_devices else n
 
 
+def _require(cfg, key: str, ok, what: str, kind=(int, float)) -> None:
+    v = cfg[key]
+    if isinstance(v, bool) or not isinstance(v, kind) or not math.isfinite(v) or not ok(v):
+        raise ValueError(f"ppo.{key} must be {what}, got {v!r}")
+
+
 def check_ppo_config(cfg) -> None:
-    """Raises ValueError naming the key for a value brax would reject late or misread silently."""
+    """Raises ValueError naming the key for a value brax would reject late or misread silently:
+    non-finite or out-of-range numbers, sizes that do not split over the devices, unknown names."""
     if cfg.policy_distribution not in POLICY_DISTRIBUTIONS:
         raise ValueError(
             f"ppo.policy_distribution is {cfg.policy_distribution!r}; choose from {list(POLICY_DISTRIBUTIONS)}"
@@ -149,10 +160,19 @@ def check_ppo_config(cfg) -> None:
         "num_updates_per_batch",
         "num_evals",
     ):
-        if cfg[key] < 1:
-            raise ValueError(f"ppo.{key} must be >= 1, got {cfg[key]}")
-    if cfg.max_devices < 0:
-        raise ValueError(f"ppo.max_devices must be >= 0 (0: all), got {cfg.max_devices}")
+        _require(cfg, key, lambda v: v >= 1, "an integer >= 1", int)
+    positive = lambda v: v > 0  # noqa: E731
+    _require(cfg, "episode_length", lambda v: v >= 0, "an integer >= 0 (0: the env's episode length)", int)
+    _require(cfg, "max_devices", lambda v: v >= 0, "an integer >= 0 (0: all)", int)
+    _require(cfg, "seed", lambda v: 0 <= v < 2**31, "an integer in [0, 2^31)", int)
+    _require(cfg, "learning_rate", positive, "a finite number > 0")
+    _require(cfg, "entropy_cost", lambda v: v >= 0, "a finite number >= 0")
+    _require(cfg, "discounting", lambda v: 0 < v <= 1, "in (0, 1]")
+    _require(cfg, "gae_lambda", lambda v: 0 <= v <= 1, "in [0, 1]")
+    _require(cfg, "clipping_epsilon", positive, "a finite number > 0")
+    _require(cfg, "max_grad_norm", positive, "a finite number > 0 (the gradient clipping norm)")
+    _require(cfg, "reward_scaling", positive, "a finite number > 0")
+    _require(cfg, "init_noise_std", positive, "a finite number > 0")
     devices = local_devices_to_use(cfg) * jax.process_count()
     for key in ("num_envs", "batch_size"):
         if cfg[key] % devices:
@@ -162,8 +182,6 @@ def check_ppo_config(cfg) -> None:
             f"ppo.batch_size * ppo.num_minibatches = {cfg.batch_size * cfg.num_minibatches} must be a multiple "
             f"of ppo.num_envs = {cfg.num_envs} (brax collects whole unrolls of every env)"
         )
-    if cfg.policy_distribution == "gait_normal" and not cfg.init_noise_std > 0:
-        raise ValueError(f"ppo.init_noise_std must be > 0, got {cfg.init_noise_std}")
 
 
 # --- networks and checkpoints -----------------------------------------------------------------------
@@ -238,6 +256,48 @@ def latest_checkpoint(run_dir: Path) -> tuple[Path, int]:
     return path, int(path.stem.split("_")[1])
 
 
+def _save_npz(path: Path, leaves: list[np.ndarray], step: int) -> None:
+    """Arrays to `path` atomically (temp file + rename), with the env step they belong to."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, step=np.int64(step), **{f"leaf_{i:05d}": leaf for i, leaf in enumerate(leaves)})
+    os.replace(tmp, path)
+
+
+def _load_npz(path: Path, step: int) -> list[np.ndarray]:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if int(data["step"]) != step:
+                raise ValueError(f"it holds step {int(data['step'])}, not {step}")
+            names = sorted(k for k in data.files if k.startswith("leaf_"))
+            return [data[k] for k in names]
+    except Exception as e:  # zipfile, numpy and our own checks raise several types
+        raise ValueError(
+            f"training state {path} is corrupt or does not belong to its checkpoint ({e}); "
+            f"move it away to resume with the parameters only (the optimiser's moments restart)"
+        ) from e
+
+
+def training_state_path(run_dir: Path, step: int) -> Path:
+    """brax's whole TrainingState (params, normaliser, Adam's moments, step count) at `step`,
+    written at every evaluation next to the parameter checkpoint."""
+    return Path(run_dir) / CHECKPOINT_DIR / f"state_{step:012d}.npz"
+
+
+def env_state_path(run_dir: Path, step: int) -> Path:
+    """The batched environment states at `step`, written when a run stops on a signal or Ctrl-C
+    (about 57 kB per environment: 0.47 GB for the gpu preset's 8192, so not at every evaluation)."""
+    return Path(run_dir) / CHECKPOINT_DIR / f"env_state_{step:012d}.npz"
+
+
+def epoch_steps(ppo_cfg) -> tuple[int, int]:
+    """-> (environment steps per training epoch, epochs) of brax PPO for `ppo_cfg`: brax splits
+    num_timesteps into max(num_evals - 1, 1) epochs of whole training steps, rounding up."""
+    per_train_step = ppo_cfg.batch_size * ppo_cfg.unroll_length * ppo_cfg.num_minibatches
+    epochs = max(ppo_cfg.num_evals - 1, 1)
+    return math.ceil(ppo_cfg.num_timesteps / (epochs * per_train_step)) * per_train_step, epochs
+
+
 # PPO keys added after runs were already published, with the value that reproduces what those runs
 # did: a run directory saved before a key existed is read with it (load_run_config).
 PPO_KEYS_ADDED = {
@@ -251,17 +311,39 @@ PPO_KEYS_ADDED = {
 
 def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collections.ConfigDict]:
     """-> (env_cfg, ppo_cfg) of a run directory, with keys added since the run filled in
-    (PPO_KEYS_ADDED); a key this version does not know is an error naming it."""
+    (PPO_KEYS_ADDED, env_config.ENV_KEYS_ADDED). A damaged or incomplete config.json, a key this version does
+    not know, a missing key, a value of the wrong type or out of range is a ValueError naming the
+    file and the key."""
+    from quadson_mjx.config import conform
+    from quadson_mjx.env_config import check_env_config, env_config, with_added_keys
+
     path = Path(run_dir) / "config.json"
     if not path.exists():
         raise FileNotFoundError(f"{run_dir} is not a run directory: {path} does not exist")
-    data = json.loads(path.read_text())
+    copy = "a copy of both configs is in the run's train.mcap (metadata env_config and ppo_config)"
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path} is not valid JSON ({e}): the file is damaged; {copy}") from None
+    if (
+        not isinstance(data, dict)
+        or not isinstance(data.get("env"), dict)
+        or not isinstance(data.get("ppo"), dict)
+    ):
+        raise ValueError(f"{path} lacks its 'env' or 'ppo' section: the file is incomplete; {copy}")
     ppo = {**PPO_KEYS_ADDED, **data["ppo"]}
-    known = set(ppo_config(ppo.get("preset", "gpu")).keys())
-    unknown = sorted(set(ppo) - known)
-    if unknown:
-        raise ValueError(f"{path}: unknown ppo config keys {unknown} (written by another version?)")
-    return from_json(json.dumps(data["env"])), from_json(json.dumps(ppo))
+    preset = ppo.get("preset", "gpu")
+    if preset not in ("gpu", "cpu", "test"):
+        raise ValueError(f"{path}: config key 'ppo.preset' is {preset!r}; expected gpu, cpu or test")
+    env = with_added_keys(data["env"]).to_dict()
+    try:
+        env_cfg = conform(env, env_config(), "env.", str(path))
+        ppo_cfg = conform(ppo, ppo_config(preset), "ppo.", str(path))
+        check_env_config(env_cfg)
+        check_ppo_config(ppo_cfg)
+    except ValueError as e:
+        raise ValueError(e if str(e).startswith(str(path)) else f"{path}: {e}") from None
+    return env_cfg, ppo_cfg
 
 
 def load_checkpoint(path: Path, obs_size: int, action_size: int, ppo_cfg):
@@ -291,6 +373,15 @@ def load_policy(run_dir: Path, checkpoint: Path | None = None, deterministic: bo
     nets = make_networks(env.observation_size, env.action_size, ppo_cfg)
     policy = ppo_networks.make_inference_fn(nets)(params, deterministic=deterministic)
     return policy, env_cfg, ppo_cfg, params
+
+
+def check_new_run_dir(run_dir: Path) -> None:
+    """Raises FileExistsError when `run_dir` holds anything: a new run never writes over one."""
+    run_dir = Path(run_dir)
+    if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
+        raise FileExistsError(
+            f"run directory {run_dir} is not empty; continue it with --resume {run_dir}, or choose another --run-dir"
+        )
 
 
 # --- run bookkeeping --------------------------------------------------------------------------------
@@ -405,6 +496,98 @@ class Progress:
         return {"env_steps_per_s": sps, "steps_this_session": float(done)}
 
 
+class StopRequested(KeyboardInterrupt):
+    """SIGINT or SIGTERM asked a training run to stop; raised at the next safe point (see train)."""
+
+
+@dataclasses.dataclass
+class _Stop:
+    """Signals deferred to a flag that the training loop checks at safe points."""
+
+    signum: int | None = None
+
+    def check(self) -> None:
+        if self.signum is not None:
+            raise StopRequested(f"stopped by {signal.Signals(self.signum).name}")
+
+    def handler(self, signum, frame):
+        if self.signum is not None:  # a second signal: stop now, wherever Python is
+            raise KeyboardInterrupt(f"second {signal.Signals(signum).name}")
+        self.signum = signum
+        message = (
+            f"\n{signal.Signals(signum).name}: stopping at the next safe point (after the compilation or "
+            "training epoch under way; a second signal stops at once)\n"
+        )
+        with contextlib.suppress(OSError, ValueError):  # an unbuffered write: safe inside a handler
+            os.write(sys.stderr.fileno(), message.encode())
+
+    @contextlib.contextmanager
+    def installed(self):
+        if threading.current_thread() is not threading.main_thread():
+            yield  # signal handlers can only be set from the main thread
+            return
+        previous = {s: signal.signal(s, self.handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            for s, h in previous.items():
+                signal.signal(s, h)
+
+
+def _free_name(run_dir: Path, stem: str, suffix: str) -> Path:
+    n = 1
+    while (run_dir / f"{stem}_{n}{suffix}").exists():
+        n += 1
+    return run_dir / f"{stem}_{n}{suffix}"
+
+
+def resume_point(run_dir: Path, ppo_cfg) -> tuple[int, Path | None]:
+    """-> (start step, checkpoint or None) for --resume; ValueError if the run cannot continue. A
+    run stopped before its first checkpoint (or with only the step-0 one, which a fresh run
+    reproduces from the seed) starts from step 0."""
+    try:
+        ckpt, start = latest_checkpoint(Path(run_dir))
+    except FileNotFoundError:
+        return 0, None
+    per_epoch, epochs = epoch_steps(ppo_cfg)
+    if start % per_epoch:
+        raise ValueError(
+            f"checkpoint {ckpt.name} is at step {start}, not at the end of a training epoch of {per_epoch} steps "
+            "(written by an older resume?): it cannot be resumed exactly"
+        )
+    if start >= epochs * per_epoch:
+        raise ValueError(f"run {run_dir} already trained {start} of {ppo_cfg.num_timesteps} steps")
+    return start, (ckpt if start > 0 else None)
+
+
+def _reopen_log(run_dir: Path, log_path: Path, stream):
+    """Moves a resumed run's log aside (never deleted) and starts a new one holding every readable
+    message, metadata record and attachment of it. -> (log, kept path, copied messages, damage)."""
+    from quadson_mjx.mcap_check import read_contents, recover_messages
+    from quadson_mjx.mcap_log import McapLog
+
+    contents = read_contents(log_path)
+    old = recover_messages(log_path)
+    kept = _free_name(run_dir, "train.before_resume", ".mcap")
+    os.replace(log_path, kept)
+    log = McapLog(log_path, profile="quadson_mjx.train")
+    for topic, log_time, message in old:
+        log.log(topic, message, log_time)
+    for m in contents.metadata:
+        log.metadata(m.name, dict(m.metadata))
+    for a in contents.attachments:
+        log.attachment(a.name, a.data, a.media_type)
+    state = (
+        f"{len(contents.damaged)} damaged records: {contents.damaged[0]}" if contents.damaged else "intact"
+    )
+    print(
+        f"resume: kept the previous log as {kept.name} ({state}); copied its {len(old)} readable messages, "
+        f"{len(contents.metadata)} metadata records and {len(contents.attachments)} attachments into {log_path.name}",
+        file=stream,
+    )
+    return log, kept, old, contents
+
+
 def train(
     env_cfg,
     ppo_cfg,
@@ -415,68 +598,126 @@ def train(
 ):
     """Trains with brax PPO and writes the run directory. Returns (make_policy, params, metrics).
 
-    resume=True continues the run in `run_dir` from its newest checkpoint (configs come from it).
-    A KeyboardInterrupt closes the MCAP log cleanly (summary written) and is re-raised.
+    resume=True continues the run in `run_dir` (configs come from it) from its newest checkpoint,
+    restoring brax's whole training state: parameters, normaliser, Adam's moments and step count
+    (state_*.npz, written at every evaluation), the PRNG keys (derived from the seed and the epoch
+    number) and, when the run stopped on a signal or Ctrl-C, the environments' states
+    (env_state_*.npz). Then the resumed run's later evaluations and parameters equal those of
+    an uninterrupted run (tested on the CPU, bit for bit). After a hard kill (no env_state file)
+    the environments restart from the run's initial states, so the curve continues but is not
+    identical; a checkpoint without a state file (older versions) restores the parameters and
+    normaliser only and the moments restart. A run without a checkpoint starts over from step 0.
+    The previous train.mcap is kept as train.before_resume_N.mcap; its readable contents
+    (read past damaged records) start the new log.
+
+    SIGINT and SIGTERM (Ctrl-C, a scheduler's preemption) are deferred while training: the run
+    stops at the next safe point: before a training epoch or an evaluation, or after saving a
+    checkpoint. A signal that arrives during an XLA compilation (tens of seconds on the first epoch
+    and evaluation) or a training epoch takes effect when it ends; a second signal stops at once.
+    Stopping raises StopRequested (a KeyboardInterrupt) after closing the log and saving the state.
     """
+    stop = _Stop()
+    with stop.installed():
+        return _train(env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop)
+
+
+def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: _Stop):
     from brax.training.agents.ppo import train as ppo
 
     from quadson_mjx import compat
     from quadson_mjx.env import QuadsonEnv
-    from quadson_mjx.mcap_check import recover_messages
+    from quadson_mjx.env_config import check_env_config
     from quadson_mjx.mcap_log import McapLog
     from quadson_mjx.randomize import randomization_fn
     from quadson_mjx.wrappers import wrap_for_training
 
     compat.patch_brax()
-    run_dir = Path(run_dir)
-    start_step = 0
-    restore = None
+    start_step, ckpt = 0, None
     if resume:
         env_cfg, ppo_cfg = load_run_config(run_dir)
-        ckpt, start_step = latest_checkpoint(run_dir)
+        start_step, ckpt = resume_point(run_dir, ppo_cfg)
+        if ckpt is None:
+            print(
+                f"resume: {run_dir} has no checkpoint after step 0: starting from step 0 with its configs",
+                file=stream,
+            )
+    check_env_config(env_cfg)
     check_ppo_config(ppo_cfg)
     if not resume:
-        if run_dir.exists() and any(run_dir.iterdir()):
-            raise FileExistsError(f"run directory {run_dir} is not empty; use --resume to continue it")
+        check_new_run_dir(run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
 
     env = QuadsonEnv(env_cfg)
     eval_env = QuadsonEnv(env_cfg)
-    if resume:
+    per_epoch, epochs = epoch_steps(ppo_cfg)
+    first_epoch = start_step // per_epoch
+    state = compat.BraxTrainingState(first_epoch=first_epoch)
+    restore, restored = None, "nothing (a fresh start from the seed)"
+    if ckpt is not None:
         restore = load_checkpoint(ckpt, env.observation_size, env.action_size, ppo_cfg)
-    remaining = ppo_cfg.num_timesteps - start_step
-    if remaining <= 0:
-        raise ValueError(f"run {run_dir} already trained {start_step} of {ppo_cfg.num_timesteps} steps")
+        restored = "parameters and normaliser only (no state file: the optimiser's moments restart)"
+        if training_state_path(run_dir, start_step).exists():
+            state.restore_training_state = _load_npz(training_state_path(run_dir, start_step), start_step)
+            restored = "the whole training state (Adam's moments, step count, keys)"
+            if env_state_path(run_dir, start_step).exists():
+                state.restore_env_state = _load_npz(env_state_path(run_dir, start_step), start_step)
+                restored += " and the environments"
+            else:
+                restored += "; the environments restart from the run's initial states"
+        print(f"resume from step {start_step:,}: restoring {restored}", file=stream)
+    devices = local_devices_to_use(ppo_cfg)
+    state.epoch_keys = lambda epoch: compat.brax_epoch_keys(ppo_cfg.seed, epoch, devices, jax.process_index())
     vers = versions()
-    (run_dir / "config.json").write_text(
+    config_tmp = run_dir / "config.json.tmp"
+    config_tmp.write_text(
         json.dumps(
             {"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": vers},
             indent=2,
         )
     )
+    os.replace(config_tmp, run_dir / "config.json")
 
     log_path = run_dir / "train.mcap"
-    old = []
+    old, kept, contents = [], None, None
     if resume and log_path.exists():
-        old = recover_messages(log_path)
-        log_path.rename(run_dir / "train.mcap.before_resume")
-    log = McapLog(log_path, profile="quadson_mjx.train")
-    for topic, log_time, message in old:
-        log.log(topic, message, log_time)
-    log.metadata("env_config", {"json": to_json(env_cfg)})
-    log.metadata("ppo_config", {"json": to_json(ppo_cfg)})
-    log.metadata("versions", vers)
-    log.attachment("quadson.xml", _model_xml(env_cfg.terrain).encode(), "application/xml")
-    if old:
-        (run_dir / "train.mcap.before_resume").unlink()
-    log.log("/train/log", {"event": "resume" if resume else "start", "step": start_step}, time.time_ns())
+        log, kept, old, contents = _reopen_log(run_dir, log_path, stream)
+    else:
+        log = McapLog(log_path, profile="quadson_mjx.train")
+    have_meta = {m.name: dict(m.metadata) for m in contents.metadata} if contents else {}
+    for name, data in (
+        ("env_config", {"json": to_json(env_cfg)}),
+        ("ppo_config", {"json": to_json(ppo_cfg)}),
+    ):
+        if name not in have_meta:
+            log.metadata(name, data)
+    if have_meta.get("versions") != {k: str(v) for k, v in vers.items()}:
+        log.metadata(
+            "versions" if "versions" not in have_meta else f"versions_resume_step_{start_step}", vers
+        )
+    if not (contents and any(a.name == "quadson.xml" for a in contents.attachments)):
+        log.attachment("quadson.xml", _model_xml(env_cfg.terrain).encode(), "application/xml")
+    event = {"event": "resume" if resume else "start", "step": start_step}
+    if resume:
+        event.update(restored=restored, kept_log=kept.name if kept else "", copied_messages=len(old))
+        if contents is not None and contents.damaged:
+            event["damaged_records"] = "; ".join(contents.damaged)[:2000]
+    log.log("/train/log", event, time.time_ns())
+    logged_steps = {m["progress"]["step"] for t, _, m in old if t == "/train/metrics" and "progress" in m}
 
-    progress = Progress(total_steps=ppo_cfg.num_timesteps, start_step=start_step, stream=progress_stream)
+    progress = Progress(total_steps=ppo_cfg.num_timesteps, start_step=start_step, stream=stream)
     compilations = XlaCompilations()
     last_metrics: dict = {}
+    # brax counts steps from its TrainingState: restored (global) when the state file was, else
+    # from 0 in this session; its calls before the first epoch pass step 0.
+    offset = 0 if state.restore_training_state is not None else start_step
+    state.checkpoint = stop.check
+    saved = {"step": None, "epochs": -1}
+
+    def global_step(step) -> int:
+        return start_step if int(step) == 0 else int(step) + offset
 
     def progress_fn(step, metrics):
-        step = int(step) + start_step
+        step = global_step(step)
         reward = metrics.get("eval/episode_reward")
         extra = progress.update(step, None if reward is None else float(reward))
         record = {
@@ -492,31 +733,51 @@ def train(
             for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset", "vx_sq_err", "vy_sq_err", "yaw_rate_sq_err", "base_height", "base_below_terrain", "fall", "off_field"):  # fmt: skip
                 if f"eval/episode_{name}" in record:
                     record[f"eval/mean_{name}"] = record[f"eval/episode_{name}"] / length
-        log.log("/train/metrics", _nest(record), time.time_ns())
+        if step not in logged_steps:  # a resumed run re-evaluates its checkpoint: logged already
+            log.log("/train/metrics", _nest(record), time.time_ns())
+            logged_steps.add(step)
         last_metrics.clear()
         last_metrics.update(record)
         if on_eval is not None:
             on_eval(step, record)
+        stop.check()
 
     def policy_params_fn(step, make_policy, params):
-        save_checkpoint(run_dir, int(step) + start_step, params)
+        step = global_step(step)
+        if state.latest is not None:  # after an epoch: the whole training state too
+            _save_npz(training_state_path(run_dir, step), state.training_state_leaves(), step)
+        elif step > start_step:
+            raise RuntimeError(
+                "compat.brax_training_state did not find brax's training epoch (brax changed?)"
+            )
+        if not (state.epochs_done == 0 and ckpt is not None):  # a resumed checkpoint exists already
+            save_checkpoint(run_dir, step, params)
+        saved.update(step=step, epochs=state.epochs_done)
+        stop.check()
 
+    remaining_epochs = epochs - first_epoch
     episode_length = ppo_cfg.episode_length or env.episode_length
     randomize = randomization_fn(env_cfg.randomization, env.base_body) if env_cfg.randomize else None
     multi_device = (
-        compat.brax_multi_device(local_devices_to_use(ppo_cfg))
+        compat.brax_multi_device(devices)
         if ppo_cfg.multi_device == "sharded_jit"
         else contextlib.nullcontext()
     )
     try:
-        with multi_device, compat.brax_evaluator_compiles_once(), compilations:
+        with (
+            multi_device,
+            compat.brax_evaluator_compiles_once(),
+            compat.brax_training_state(state, eval_offset=first_epoch if ppo_cfg.num_evals > 1 else 0),
+            compilations,
+        ):
+            stop.check()
             make_policy, params, _ = ppo.train(
                 environment=env,
                 eval_env=eval_env,
                 wrap_env_fn=wrap_for_training,
                 randomization_fn=randomize,
-                num_timesteps=remaining,
-                num_evals=ppo_cfg.num_evals,
+                num_timesteps=remaining_epochs * per_epoch,
+                num_evals=remaining_epochs + 1 if ppo_cfg.num_evals > 1 else 1,
                 num_envs=ppo_cfg.num_envs,
                 num_eval_envs=ppo_cfg.num_eval_envs,
                 episode_length=episode_length,
@@ -533,19 +794,21 @@ def train(
                 reward_scaling=ppo_cfg.reward_scaling,
                 normalize_observations=ppo_cfg.normalize_observations,
                 network_factory=lambda obs, act, preprocess_observations_fn: make_networks(obs, act, ppo_cfg),
-                seed=ppo_cfg.seed + start_step,
+                seed=ppo_cfg.seed,
                 progress_fn=progress_fn,
                 policy_params_fn=policy_params_fn,
                 restore_params=restore,
                 max_devices_per_host=ppo_cfg.max_devices or None,
                 deterministic_eval=ppo_cfg.deterministic_eval,
             )
-    except KeyboardInterrupt:
-        log.log(
-            "/train/log",
-            {"event": "interrupted", "step": progress.last[1] if progress.last else start_step},
-            time.time_ns(),
-        )
+    except KeyboardInterrupt as e:
+        event = {"event": "interrupted", "step": saved["step"] if saved["step"] is not None else start_step}
+        if state.latest is not None and saved["epochs"] == state.epochs_done:
+            # stopped between epochs: the environments' states make the resume exact
+            _save_npz(env_state_path(run_dir, saved["step"]), state.env_state_leaves(), saved["step"])
+            event["env_state"] = env_state_path(run_dir, saved["step"]).name
+        event["reason"] = str(e) or type(e).__name__
+        log.log("/train/log", event, time.time_ns())
         log.close()
         raise
     except BaseException as e:  # any other failure: the log still gets its summary and says why
@@ -553,7 +816,7 @@ def train(
         log.log("/train/log", {"event": event, "step": start_step}, time.time_ns())
         log.close()
         raise
-    print(compilations.summary(), file=progress_stream, flush=True)
+    print(compilations.summary(), file=stream, flush=True)
     # brax hands the final parameters to policy_params_fn at its last evaluation: already saved.
     final_step = progress.last[1] if progress.last else ppo_cfg.num_timesteps
     log.log("/train/log", {"event": "finished", "step": final_step}, time.time_ns())

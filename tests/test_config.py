@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quadson_mjx import compat
-from quadson_mjx.config import apply_overrides, from_json, to_json
+from quadson_mjx.config import apply_overrides, conform, from_json, to_json
 
 
 def _cfg():
@@ -93,3 +93,51 @@ def test_network_sizes_take_any_depth():
     for bad in ("policy_hidden=()", "policy_hidden=(64, 0)", "policy_hidden=(64.5,)"):
         with pytest.raises(ValueError, match="policy_hidden"):
             apply_overrides(ppo_config("gpu"), [bad])
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("reward.forward_sigma=0", "env.reward.forward_sigma"),
+        ("reward.tracking_sigma=-1", "env.reward.tracking_sigma"),
+        ("terrain=moon", "env.terrain"),
+        ("gait=hop", "env.gait"),
+        ("ctrl_dt=0", "env.ctrl_dt"),
+        ("gait_ramp_s=0", "env.gait_ramp_s"),
+        ("command_range.vx=(0.5, -0.5)", "env.command_range.vx"),
+        ("randomization.friction=(0, 1)", "env.randomization.friction"),
+        ("reward.weights.torque_l2=1e999", "env.reward.weights.torque_l2"),
+        ("noise.rpy=-0.1", "env.noise.rpy"),
+    ],
+)
+def test_env_config_values_out_of_range_are_errors_naming_the_key_regression(override, key):
+    # Regression (issue 13, item 4): these were accepted (forward_sigma=0 divides by zero in the
+    # reward kernel; terrain=moon failed later in the model builder with a traceback).
+    from quadson_mjx.env_config import check_env_config, env_config
+
+    cfg = apply_overrides(env_config(), [override])
+    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+        check_env_config(cfg)
+    check_env_config(env_config(command_tracking=True, randomize=True, pushes=True, terrain="rough"))
+
+
+def test_conform_checks_types_and_keys_against_the_factory():
+    ref = _cfg().env
+    good = {
+        "reward": {"forward_target": 1, "weights": {"lateral_l2": -0.8}},
+        "terrain": "flat",
+        "push": False,
+        "num_legs": 4,
+        "range": [0, 1.5],
+    }
+    cfg = conform(good, ref, "env.", "f.json")
+    assert cfg.range == (0.0, 1.5) and cfg.reward.forward_target == 1.0
+    for data, message in (
+        ({**good, "num_legs": "4"}, "env.num_legs"),
+        ({**good, "extra": 1}, "env.extra"),
+        ({k: v for k, v in good.items() if k != "push"}, "env.push' is missing"),
+        ({**good, "range": [0, 1, 2]}, "env.range"),
+        ({**good, "reward": 3}, "env.reward"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            conform(data, ref, "env.", "f.json")

@@ -463,3 +463,38 @@ def test_batch_shapes(shape, float_dtype):
     tol = 1e-9 if float_dtype == np.float64 else 1e-4
     np.testing.assert_allclose(np.asarray(back), a, atol=tol)
     np.testing.assert_allclose(np.asarray(foot), ref_fk(a.astype(np.float64)), atol=10 * tol)
+
+
+def test_leg_ik_non_finite_and_huge_targets_give_finite_angles_regression():
+    # Regression (issue 13, item 6): NaN, inf and 1e30 m targets gave NaN angles inside jit. The
+    # docstring's promise: finite angles, valid False. A NaN/inf target falls back to the home
+    # stance's angles (INITIAL_MOTOR_ANGLES); a 1e30 m target, clipped to 1 m per coordinate,
+    # stretches the leg toward it like any out-of-reach target (the 0.30 m case above), so its
+    # direction must match that of a 10 m target in the same direction.
+    targets = np.array(
+        [[np.nan, -0.2, 0.0], [0.0, np.inf, 0.0], [0.0, -1e30, 0.0], [0.0, -10.0, 0.0], [1e30, 1e30, -1e30]],
+        np.float32,
+    )
+    angles, valid = map(np.asarray, ik(targets))
+    assert np.all(np.isfinite(angles)) and not valid.any()
+    np.testing.assert_allclose(angles[0], C.INITIAL_MOTOR_ANGLES, atol=1e-6)
+    np.testing.assert_allclose(angles[1], C.INITIAL_MOTOR_ANGLES, atol=1e-6)
+    np.testing.assert_allclose(angles[2], angles[3], atol=1e-6)
+    grads = jax.jit(jax.vmap(jax.grad(lambda f: jnp.sum(fb.leg_ik(f)[0]))))(targets)
+    assert np.all(np.isfinite(np.asarray(grads)))
+
+
+@pytest.mark.parametrize("shape", [(2,), (4,), (5, 2)])
+def test_leg_ik_rejects_a_last_axis_other_than_3_regression(shape):
+    # Regression (issue 13, item 6): (2,) and (4,) were accepted (jnp indexing clamps foot[..., 2]).
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        fb.leg_ik(np.zeros(shape, np.float32))
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        jax.jit(fb.leg_ik)(np.zeros(shape, np.float32))
+
+
+def test_leg_ik_checked_names_a_nan_target_as_not_finite_regression():
+    # Regression (issue 13, item 6): a NaN target was explained as "out of reach".
+    with pytest.raises(ValueError, match="not a finite number") as info:
+        fb.leg_ik_checked(np.array([[-0.04, -0.20, 0.0], [np.nan, -0.2, 0.0]]))
+    assert "out of reach" not in str(info.value) and "index (1,)" in str(info.value)

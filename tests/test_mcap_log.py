@@ -70,3 +70,92 @@ def test_killed_writer_keeps_every_flushed_message(tmp_path, fraction):
     mcap_check.recover(cut, fixed)
     again = mcap_check.check(fixed)
     assert again.complete and again.counts["/train/metrics"] == 3
+
+
+def _index(path):
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    return summary.chunk_indexes, summary.attachment_indexes
+
+
+def _flip(path, out, offset):
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x5A
+    out.write_bytes(bytes(data))
+    return out
+
+
+def _rewards(path):
+    return [m["eval"]["episode_reward"] for _, _, m in mcap_check.recover_messages(path)]
+
+
+@pytest.mark.parametrize("where", ["compressed data", "length field"])
+def test_damaged_chunk_is_reported_and_later_messages_are_kept_regression(tmp_path, where, capsys):
+    # Regression (issue 13, item 2): a flipped byte in a compressed chunk crashed the checker with a
+    # ZstdError traceback (or stopped it there, losing every later message). McapLog writes one
+    # chunk per message, so exactly the second message (reward 1.0) is lost, and 0, 2, 3 remain.
+    path = tmp_path / "train.mcap"
+    _write(path, 4)
+    chunks, _ = _index(path)
+    second = sorted(chunks, key=lambda c: c.chunk_start_offset)[1]
+    # a chunk record: opcode (1 byte), length (8), then its fields; its compressed bytes end it
+    offset = second.chunk_start_offset + (second.chunk_length - 5 if where == "compressed data" else 6)
+    bad = _flip(path, tmp_path / "bad.mcap", offset)
+    report = mcap_check.check(bad)
+    assert not report.complete and report.counts["/train/metrics"] == 3
+    assert f"offset {second.chunk_start_offset}" in report.damaged[0] and "CHUNK" in report.damaged[0]
+    assert _rewards(bad) == [0.0, 2.0, 3.0]
+    assert mcap_check.main([str(bad)]) == 1
+    assert "damaged: offset" in capsys.readouterr().out
+    fixed = tmp_path / "fixed.mcap"
+    mcap_check.recover(bad, fixed)
+    again = mcap_check.check(fixed)
+    assert again.complete and again.counts["/train/metrics"] == 3
+    assert again.metadata == ["env_config"] and again.attachments == ["model.xml"]
+
+
+def test_flipped_byte_in_an_attachment_is_not_complete_regression(tmp_path):
+    # Regression (issue 13, item 2): a damaged attachment reported "complete" (its CRC was not read).
+    path = tmp_path / "train.mcap"
+    _write(path, 2)
+    _, attachments = _index(path)
+    a = attachments[0]
+    bad = _flip(path, tmp_path / "bad.mcap", a.offset + a.length - 6)  # in its data, before the CRC
+    report = mcap_check.check(bad)
+    assert not report.complete and "CRC" in report.error and "model.xml" in report.error
+    assert report.counts["/train/metrics"] == 2 and report.attachments == []
+    assert mcap_check.main([str(bad)]) == 1
+
+
+def test_recover_keeps_metadata_and_attachments_regression(tmp_path):
+    # Regression (issue 13, item 2): --recover dropped metadata (configs, versions) and attachments.
+    path = tmp_path / "train.mcap"
+    sizes = _write(path, 3, close=False)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: sizes[1] + 20])  # into the third chunk
+    fixed = tmp_path / "fixed.mcap"
+    assert mcap_check.main([str(cut), "--recover", str(fixed)]) == 1
+    with open(fixed, "rb") as f:
+        reader = make_reader(f)
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        att = {a.name: a.data for a in reader.iter_attachments()}
+    assert meta == {"env_config": {"json": "{}"}} and att == {"model.xml": b"<mujoco/>"}
+    assert _rewards(fixed) == [0.0, 1.0]
+
+
+def test_recover_never_overwrites_regression(tmp_path, capsys):
+    # Regression (issue 13, item 2): `--recover X X` opened the output before reading the input and
+    # destroyed it; any existing OUT was overwritten. Both are usage errors now (exit 2), untouched.
+    path = tmp_path / "train.mcap"
+    sizes = _write(path, 3, close=False)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: sizes[1] + 20])  # into the third chunk
+    before = cut.read_bytes()
+    assert mcap_check.main([str(cut), "--recover", str(cut)]) == 2
+    assert "is the input file" in capsys.readouterr().err
+    other = tmp_path / "other.mcap"
+    other.write_bytes(b"keep me")
+    assert mcap_check.main([str(cut), "--recover", str(other)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert cut.read_bytes() == before and other.read_bytes() == b"keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "other.mcap", "train.mcap"]

@@ -1,6 +1,7 @@
 """PPO training end to end on CPU with the 'test' preset: finite metrics, the MCAP log, checkpoints,
 Ctrl-C, resume, inference from a checkpoint, and config errors."""
 
+import io
 import json
 import math
 import subprocess
@@ -24,11 +25,43 @@ def _small_env():
     return apply_overrides(env_config(), ["episode_length_s=0.2"])
 
 
+RUN = ["num_evals=3", "num_timesteps=192"]  # 2 epochs of 128 steps (test preset: 64 per training step)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The reference for a resumed run: the same config trained in one go."""
+    run_dir = tmp_path_factory.mktemp("reference")
+    evals = {}
+    _, params, _ = training.train(
+        _small_env(),
+        apply_overrides(training.ppo_config("test"), RUN),
+        run_dir,
+        progress_stream=io.StringIO(),
+        on_eval=lambda step, record: evals.__setitem__(step, record),
+    )
+    return evals, params
+
+
+def _first_metrics_chunk(path):
+    """(offset, length) of the chunk holding the first /train/metrics message."""
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        metrics = [c for c in summary.channels.values() if c.topic == "/train/metrics"][0]
+        first = min(
+            (c for c in summary.chunk_indexes if metrics.id in c.message_index_offsets),
+            key=lambda c: c.chunk_start_offset,
+        )
+    return first.chunk_start_offset, first.chunk_length
+
+
 @pytest.fixture(scope="module")
 def interrupted_then_resumed(tmp_path_factory):
-    """A run stopped by Ctrl-C after its first evaluation, then resumed to the end."""
+    """A run stopped by Ctrl-C after its first evaluation; one byte of its log's first metrics
+    record flipped; then resumed to the end."""
     run_dir = tmp_path_factory.mktemp("run")
-    ppo_cfg = apply_overrides(training.ppo_config("test"), ["num_evals=3", "num_timesteps=192"])
+    ppo_cfg = apply_overrides(training.ppo_config("test"), RUN)
     evals = []
 
     def stop_after_first(step, record):
@@ -37,13 +70,31 @@ def interrupted_then_resumed(tmp_path_factory):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        training.train(_small_env(), ppo_cfg, run_dir, on_eval=stop_after_first)
+        training.train(
+            _small_env(), ppo_cfg, run_dir, on_eval=stop_after_first, progress_stream=io.StringIO()
+        )
+    log = run_dir / "train.mcap"
     interrupted = {
         "evals": list(evals),
         "checkpoint": training.latest_checkpoint(run_dir),
-        "log": (run_dir / "train.mcap").read_bytes(),
+        "log": log.read_bytes(),
     }
-    _, params, metrics = training.train(None, None, run_dir, resume=True)
+    offset, length = _first_metrics_chunk(log)
+    damaged = bytearray(interrupted["log"])
+    damaged[offset + length - 5] ^= 0x5A  # in the chunk's compressed bytes
+    log.write_bytes(bytes(damaged))
+    interrupted.update(damaged_log=bytes(damaged), damaged_offset=offset)
+    resumed_evals = {}
+    out = io.StringIO()
+    _, params, metrics = training.train(
+        None,
+        None,
+        run_dir,
+        resume=True,
+        progress_stream=out,
+        on_eval=lambda step, record: resumed_evals.__setitem__(step, record),
+    )
+    interrupted.update(resumed_evals=resumed_evals, resume_output=out.getvalue())
     return run_dir, interrupted, metrics, params
 
 
@@ -74,12 +125,54 @@ def test_resumed_run_finishes_with_finite_metrics_and_full_log(interrupted_then_
     events = [m["event"] for t, m in msgs if t == "/train/log"]
     assert events == ["start", "interrupted", "resume", "finished"]  # the killed run's messages kept
     steps = [m["progress"]["step"] for t, m in msgs if t == "/train/metrics"]
-    assert steps == sorted(steps) and steps[-1] >= 192
-    n_before = len(interrupted["evals"])
-    assert len(steps) >= n_before + 1
+    # step 0's record was in the damaged chunk; the resumed run's re-evaluation of step 128 is not
+    # logged twice
+    assert steps == [128, 256]
     assert {"env_config", "ppo_config", "versions"} <= meta and "quadson.xml" in attachments
     _, last = [(t, m) for t, m in msgs if t == "/train/metrics"][-1]
     assert "episode_reward" in last["eval"] and "env_steps_per_s" in last["progress"]
+
+
+def test_resume_after_a_damaged_log_record_keeps_every_original_regression(interrupted_then_resumed):
+    # Regression (issue 13, item 1): resume rewrote the log from the damaged record on (losing the
+    # intact evaluation and the "interrupted" event after it) and deleted the original.
+    run_dir, interrupted, _, _ = interrupted_then_resumed
+    kept = run_dir / "train.before_resume_1.mcap"
+    assert kept.read_bytes() == interrupted["damaged_log"]  # the original, byte for byte
+    with open(run_dir / "train.mcap", "rb") as f:
+        msgs = [(c.topic, json.loads(m.data)) for _, c, m in make_reader(f).iter_messages()]
+    resume = [m for t, m in msgs if t == "/train/log" and m["event"] == "resume"][0]
+    assert resume["kept_log"] == kept.name and resume["step"] == 128
+    assert f"offset {interrupted['damaged_offset']}" in resume["damaged_records"]
+    assert (
+        "kept the previous log as train.before_resume_1.mcap (1 damaged records"
+        in interrupted["resume_output"]
+    )
+    before = [m["progress"]["step"] for t, m in msgs if t == "/train/metrics"]
+    assert 128 in before  # the evaluation after the damaged record survived
+
+
+def test_resumed_run_continues_the_uninterrupted_curve_exactly_regression(
+    interrupted_then_resumed, uninterrupted
+):
+    # Regression (issue 13, item 7): resume restarted Adam's moments (and reseeded the run), so its
+    # curve left the uninterrupted one. With the whole training state restored (moments, step
+    # count, keys, environments) the resumed run is the same computation: on the CPU, XLA is
+    # deterministic, so its later evaluation and final parameters equal the reference bit for bit.
+    run_dir, interrupted, _, params = interrupted_then_resumed
+    ref_evals, ref_params = uninterrupted
+    resumed = interrupted["resumed_evals"]
+    assert sorted(resumed) == [128, 256] and sorted(ref_evals) == [0, 128, 256]
+    for key in ("eval/episode_reward", "eval/avg_episode_length", "eval/episode_forward_speed"):
+        assert resumed[256][key] == ref_evals[256][key], key
+        # the resumed run's first evaluation re-evaluates the checkpoint with the same key
+        assert resumed[128][key] == dict(interrupted["evals"])[128][key] == ref_evals[128][key], key
+    for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(ref_params), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert (
+        training.training_state_path(run_dir, 128).exists() and training.env_state_path(run_dir, 128).exists()
+    )
+    assert "restoring the whole training state" in interrupted["resume_output"]
 
 
 def test_checkpoint_loads_for_inference(interrupted_then_resumed):
@@ -97,6 +190,13 @@ def test_resume_of_a_finished_run_is_refused(interrupted_then_resumed):
     run_dir, *_ = interrupted_then_resumed
     with pytest.raises(ValueError, match="already trained"):
         training.train(None, None, run_dir, resume=True)
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "train" / "ppo_mjx.py"), "--resume", str(run_dir)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 2 and "already trained" in out.stderr and "Traceback" not in out.stderr
 
 
 def test_missing_and_corrupt_checkpoints_are_clear_errors(tmp_path, interrupted_then_resumed):
@@ -110,6 +210,14 @@ def test_missing_and_corrupt_checkpoints_are_clear_errors(tmp_path, interrupted_
     bad.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
     with pytest.raises(ValueError, match="corrupt"):
         training.load_checkpoint(bad, 29, 12, training.ppo_config("test"))
+    state = training.training_state_path(run_dir, 128)
+    (tmp_path / "checkpoints").mkdir()
+    bad_state = training.training_state_path(tmp_path, 128)
+    bad_state.write_bytes(state.read_bytes()[:100])
+    with pytest.raises(ValueError, match=f"{bad_state}.*corrupt.*move it away"):
+        training._load_npz(bad_state, 128)
+    with pytest.raises(ValueError, match="holds step 128, not 256"):
+        training._load_npz(state, 256)
 
 
 def test_new_run_refuses_a_non_empty_directory(tmp_path):
@@ -179,6 +287,14 @@ def test_ppo_config_errors_name_the_key():
         ("num_envs=0", "ppo.num_envs"),
         ("max_devices=-1", "ppo.max_devices"),
         ("batch_size=3", "ppo.batch_size * ppo.num_minibatches"),
+        # issue 13, item 4: accepted before, then trained on nonsense or failed deep in XLA
+        ("learning_rate=-1", "ppo.learning_rate"),
+        ("learning_rate=1e999", "ppo.learning_rate"),
+        ("discounting=2", "ppo.discounting"),
+        ("gae_lambda=-1", "ppo.gae_lambda"),
+        ("max_grad_norm=-1", "ppo.max_grad_norm"),
+        ("episode_length=-5", "ppo.episode_length"),
+        ("clipping_epsilon=0", "ppo.clipping_epsilon"),
     ):
         with pytest.raises(ValueError, match=key.replace("*", r"\*")):
             training.check_ppo_config(apply_overrides(base, [override]))
@@ -211,6 +327,73 @@ def test_run_configs_written_before_new_keys_still_load(tmp_path):
         training.load_run_config(run)
 
 
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda text, data: text[: len(text) // 2], "not valid JSON"),
+        (lambda text, data: json.dumps({"env": data["env"]}), "lacks its 'env' or 'ppo' section"),
+        (
+            lambda text, data: json.dumps({**data, "ppo": _without(data["ppo"], "learning_rate")}),
+            "ppo.learning_rate' is missing",
+        ),
+        (lambda text, data: json.dumps({**data, "ppo": {**data["ppo"], "num_envs": "many"}}), "ppo.num_envs"),
+        (
+            lambda text, data: json.dumps({**data, "ppo": {**data["ppo"], "discounting": 2.0}}),
+            "ppo.discounting",
+        ),
+        (lambda text, data: json.dumps({**data, "env": {**data["env"], "terrain": "moon"}}), "env.terrain"),
+        (
+            lambda text, data: json.dumps(
+                {**data, "env": {**data["env"], "reward": {**data["env"]["reward"], "forward_sigma": 0}}}
+            ),
+            "env.reward.forward_sigma",
+        ),
+    ],
+)
+def test_damaged_run_config_is_an_error_naming_the_file_and_key_regression(tmp_path, damage, message):
+    # Regression (issue 13, item 4): a corrupt or incomplete config.json ended in a KeyError or
+    # JSONDecodeError traceback that named neither the file nor the key.
+    legacy = (ROOT / "tests" / "data" / "legacy_run" / "config.json").read_text()
+    (tmp_path / "config.json").write_text(damage(legacy, json.loads(legacy)))
+    with pytest.raises(ValueError, match=message) as info:
+        training.load_run_config(tmp_path)
+    assert str(tmp_path / "config.json") in str(info.value)
+
+
+def _without(d, key):
+    return {k: v for k, v in d.items() if k != key}
+
+
+@pytest.mark.parametrize(
+    "args, key",
+    [
+        (["--ppo.episode_length=-5"], "ppo.episode_length"),
+        (["--env.terrain=moon"], "env.terrain"),
+    ],
+)
+def test_script_bad_values_exit_2_naming_the_key_regression(tmp_path, args, key):
+    # Regression (issue 13, item 4): episode_length=-5 failed deep in XLA, terrain=moon in the model
+    # builder, both with a traceback. Now: exit 2, one line naming the key, nothing written.
+    out = subprocess.run(_script(tmp_path / "r", *args), capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert key in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "r").exists()
+
+
+def test_script_resume_of_a_damaged_config_exits_2_naming_the_file_regression(tmp_path):
+    run = tmp_path / "r"
+    run.mkdir()
+    (run / "config.json").write_text('{"env": {"terrain": "fl')
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "train" / "ppo_mjx.py"), "--resume", str(run)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert str(run / "config.json") in out.stderr and "not valid JSON" in out.stderr
+
+
 def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):
     # A scheduler's SIGTERM must leave what Ctrl-C leaves: a closed log and a resumable checkpoint.
     import signal
@@ -218,10 +401,11 @@ def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):
 
     run = tmp_path / "r"
     proc = subprocess.Popen(
-        _script(run, "--ppo.num_evals=3", "--ppo.num_timesteps=192"),
+        _script(run, "--env.episode_length_s=0.2", *[f"--ppo.{o}" for o in RUN]),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        env=_script_env(),
     )
     deadline = time.monotonic() + 300
     while not (run / "checkpoints" / "latest").exists():
@@ -237,3 +421,63 @@ def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):
         events = [json.loads(m.data)["event"] for _, c, m in reader.iter_messages(topics=["/train/log"])]
     assert events == ["start", "interrupted"]
     training.latest_checkpoint(run)  # resumable
+
+
+def _script_env():
+    """Environment of a script subprocess: the test session's persistent compilation cache."""
+    import os
+
+    cache = ROOT / ".pytest_cache" / "jax_compilation"
+    return {
+        **os.environ,
+        "JAX_COMPILATION_CACHE_DIR": str(cache),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "1",
+    }
+
+
+def _events(path):
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_summary() is not None  # closed cleanly
+        return [json.loads(m.data)["event"] for _, c, m in reader.iter_messages(topics=["/train/log"])]
+
+
+def test_signal_before_the_first_checkpoint_stops_and_resumes_regression(tmp_path):
+    # Regression (issue 13, item 3): Ctrl-C during the first compilation printed "Continue with
+    # --resume", but resume failed (no checkpoint) and a rerun refused the directory; a signal
+    # during XLA compilation could also be swallowed (the run trained to the end). Now the signal
+    # is deferred to the next safe point, the run stops (exit 130) and --resume starts it over.
+    import signal
+    import time
+
+    run = tmp_path / "r"
+    proc = subprocess.Popen(
+        _script(run, "--env.episode_length_s=0.2", *[f"--ppo.{o}" for o in RUN]),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=_script_env(),
+    )
+    deadline = time.monotonic() + 300
+    while not (run / "train.mcap").exists():  # the run has started: configs written, compiling next
+        assert proc.poll() is None and time.monotonic() < deadline, "the run did not start"
+        time.sleep(0.2)
+    time.sleep(1.0)  # into brax's first compilations
+    assert not (run / "checkpoints" / "latest").exists()  # before the first checkpoint
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 130 and "Traceback" not in out, out[-3000:]
+    assert f"--resume {run}" in out
+    assert _events(run / "train.mcap") == ["start", "interrupted"]
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "train" / "ppo_mjx.py"), "--resume", str(run)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=_script_env(),
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
+    assert _events(run / "train.mcap") == ["start", "interrupted", "resume", "finished"]
+    assert (run / "train.before_resume_1.mcap").exists()
+    assert training.latest_checkpoint(run)[1] == 256
+    assert "stopping at the next safe point" in out and "from step 0 (no checkpoint yet)" in out

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from quadson_mjx import training  # noqa: E402
 from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
+from quadson_mjx.env_config import check_env_config, env_config  # noqa: E402
 
 # Training physics of every preset: feet-only ground contact and no joint-limit rows (the episode
 # ends before the base reaches the ground; the IK keeps targets in range): 28 constraint rows
@@ -76,8 +76,8 @@ def parse(argv):
 
 
 def _terminate(signum, frame):
-    """SIGTERM (a cluster scheduler's preemption, `kill`) ends the run like Ctrl-C: log closed,
-    newest checkpoint kept, resumable."""
+    """SIGTERM (a cluster scheduler's preemption, `kill`) ends the script like Ctrl-C. While
+    `training.train` runs it defers both to its next safe point (log closed, state saved)."""
     raise KeyboardInterrupt(f"signal {signum}")
 
 
@@ -93,6 +93,12 @@ def main(argv=None) -> int:
             print("--resume takes the run's saved configs; overrides are not allowed", file=sys.stderr)
             return 2
         run_dir = Path(args.resume)
+        try:
+            # the checks train() makes, answered as a usage error
+            training.resume_point(run_dir, training.load_run_config(run_dir)[1])
+        except (ValueError, OSError) as e:
+            print(f"error: cannot resume {run_dir}: {e}", file=sys.stderr)
+            return 2
         env_cfg = ppo_cfg = None
     else:
         on_gpu = jax.default_backend() == "gpu"
@@ -106,22 +112,27 @@ def main(argv=None) -> int:
             ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
             env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
             ppo_cfg = apply_overrides(training.ppo_config(preset), ppo_over, prefix="ppo.")
+            check_env_config(env_cfg)
             training.check_ppo_config(ppo_cfg)
-        except ValueError as e:
+            run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
+            training.check_new_run_dir(run_dir)
+        except (ValueError, FileExistsError) as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
-        run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
     print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
     t0 = time.monotonic()
     try:
         _, _, metrics = training.train(env_cfg, ppo_cfg, run_dir, resume=bool(args.resume))
     except KeyboardInterrupt:
-        print(
-            f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable; the newest checkpoint is"
-        )
-        print(
-            f"in {run_dir / training.CHECKPOINT_DIR}. Continue with: python train/ppo_mjx.py --resume {run_dir}"
-        )
+        print(f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable.")
+        if (run_dir / "config.json").exists():
+            try:
+                where = f"from its checkpoint at step {training.latest_checkpoint(run_dir)[1]:,}"
+            except FileNotFoundError:
+                where = "from step 0 (no checkpoint yet)"
+            print(f"Continue {where} with: python train/ppo_mjx.py --resume {run_dir}")
+        else:
+            print("Nothing was saved yet: run the same command again.")
         return 130
     print(f"\ndone in {time.monotonic() - t0:.0f} s")
     for key in ("eval/episode_reward", "eval/mean_forward_speed", "eval/avg_episode_length"):
