@@ -13,6 +13,7 @@ the joystick recipe with domain randomization and pushes). Any config key can be
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -61,9 +62,10 @@ def parse(argv):
     )
     p.add_argument(
         "--compile-cache",
-        default="~/.cache/quadson_mjx/xla",
+        default=os.environ.get("JAX_COMPILATION_CACHE_DIR", "~/.cache/quadson_mjx/xla"),
         metavar="DIR",
-        help="persistent XLA compilation cache: a second run loads its programs (default: %(default)s)",
+        help="persistent XLA compilation cache: a second run loads its programs "
+        "(default: $JAX_COMPILATION_CACHE_DIR or %(default)s)",
     )
     p.add_argument("--no-compile-cache", action="store_true", help="compile everything afresh")
     p.add_argument("--num-processes", type=int, default=1, help="several hosts: number of processes")
