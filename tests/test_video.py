@@ -109,7 +109,7 @@ def test_rollout_cli_video_renders_the_first_environment(monkeypatch, tmp_path, 
         calls.update(n_envs=n_envs, n_steps=n_steps)
         Path(path).write_bytes(b"")
         on_segment(0, types.SimpleNamespace(qpos=np.stack([env0, env1], axis=1)))  # [t, B, nq]
-        return {"steps": n_steps, "falls": 0, "nan_resets": 0}
+        return {"steps": n_steps, "falls": 0, "off_field": 0, "nan_resets": 0}
 
     monkeypatch.setattr(cli.foxglove_mcap, "record", fake_record)
     out, clip = tmp_path / "r.mcap", tmp_path / "r.mp4"
