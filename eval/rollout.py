@@ -194,7 +194,7 @@ def build(args, overrides, controller_name: str, terrain: str | None):
 def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
     env, controller, meta = build(args, overrides, controller_name, terrain)
     if command is None:
-        seed_speed = float(gait.seed_speed(gait.gait_params(env.config.gait, swing=env.config.swing)))
+        seed_speed = float(gait.seed_speed(env.gait_params))
         vx = seed_speed if args.vx is None else args.vx
         command = (vx, args.vy, args.yaw_rate)
     n_steps = round(args.seconds / env.ctrl_dt)

@@ -112,7 +112,7 @@ class LoopConfig(NamedTuple):
     @classmethod
     def from_env_config(cls, cfg: dict) -> LoopConfig:
         return cls(
-            gait=gait_np.gait_params(cfg["gait"], swing=cfg["swing"]),
+            gait=gait_np.gait_params(cfg["gait"], swing=cfg["swing"], scale=cfg.get("gait_scale")),
             ctrl_dt=float(cfg["ctrl_dt"]),
             gait_ramp_s=float(cfg["gait_ramp_s"]),
             action_scale_m=float(cfg["action_scale_m"]),

@@ -28,10 +28,11 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
+from quadson_mjx import constants as C
 from quadson_mjx import gait, rewards, terrain
 from quadson_mjx import model as qmodel
 from quadson_mjx.config import freeze
-from quadson_mjx.env_config import env_config, with_added_keys
+from quadson_mjx.env_config import env_config, env_gait, with_added_keys
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no Quadson state is this fast; treat it as a blown-up solve
 
@@ -85,6 +86,7 @@ class QuadsonEnv(Env):
         "base_below_terrain",  # 1 when the base box's bottom face is below the ground under it
         "fall",  # 1 on the step an episode ends by tilt, height or the base in the ground
         "off_field",  # 1 on the step an episode ends at the stone field's edge (a truncation)
+        "contact_match",  # fraction of the 4 feet whose ground contact agrees with the phase table
     )
 
     def __init__(self, config=None):
@@ -133,8 +135,15 @@ class QuadsonEnv(Env):
         self._home_ctrl = jnp.asarray(qmodel.home_ctrl(self._mj_model))
         planar = qmodel.home_foot_targets()  # (4, 2) x, y in the leg plane
         self._home_feet = jnp.asarray(np.pad(planar, ((0, 0), (0, 1))), jnp.float32)  # (4, 3), z = 0
-        self._gait = gait.gait_params(cfg.gait, swing=cfg.swing)
+        self._gait = env_gait(cfg)
         self._seed_speed = float(gait.seed_speed(self._gait))
+        self._forward_target = self._seed_speed if cfg.reward.target_gait_speed else cfg.reward.forward_target
+        self._foot_geoms = jnp.asarray(
+            [
+                mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, f"{leg}_foot_collision")
+                for leg in C.LEGS
+            ]
+        )
         self._root_q = ids.root_qposadr
         self._root_v = ids.root_dofadr
         if (self._root_q, self._root_v) != (0, 0):
@@ -160,6 +169,11 @@ class QuadsonEnv(Env):
     @property
     def mj_model(self) -> mujoco.MjModel:
         return self._mj_model
+
+    @property
+    def gait_params(self) -> gait.GaitParams:
+        """The gait the environment runs (env_config.env_gait of its config)."""
+        return self._gait
 
     @property
     def base_body(self) -> int:
@@ -255,7 +269,9 @@ class QuadsonEnv(Env):
 
         rpy, lin_vel, ang_vel = self._base_state(data)
         height = data.qpos[2] - terrain.ground_height(self._field, data.qpos[:2])
-        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel, height)
+        contact = self.foot_contact(data)
+        stance = self.scheduled_stance(info["gait_progress"])
+        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel, height, contact, stance)
         weights = cfg.reward.weights
         reward = sum(weights[k] * v for k, v in terms.items())
         term = cfg.termination
@@ -300,6 +316,7 @@ class QuadsonEnv(Env):
             base_below_terrain=(sane & below).astype(jnp.float32),
             fall=(sane & fallen).astype(jnp.float32),
             off_field=(sane & off_field & ~fallen).astype(jnp.float32),
+            contact_match=jnp.where(sane, jnp.mean(contact == stance), 0.0),
         )
         return state.replace(
             pipeline_state=data,
@@ -341,6 +358,20 @@ class QuadsonEnv(Env):
         angles, valid = gait.motor_targets(targets)  # (4, 3), (4,)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles.reshape(12))
         return ctrl, jnp.sum(~valid), params.cycle_s, targets
+
+    def foot_contact(self, data) -> jax.Array:
+        """(4,) bool, LEGS order: the foot's collision sphere touches the ground (a contact of that
+        geom with negative distance; the model has no contact margin)."""
+        c = data._impl.contact
+        involved = (c.geom1[None, :] == self._foot_geoms[:, None]) | (
+            c.geom2[None, :] == self._foot_geoms[:, None]
+        )
+        return jnp.any(involved & (c.dist[None, :] < 0.0), axis=1)
+
+    def scheduled_stance(self, gait_progress) -> jax.Array:
+        """(..., 4) bool: the phase table puts the leg in stance at gait_progress (...) (a fraction
+        of the cycle, info["gait_progress"])."""
+        return gait.leg_phases(gait_progress * self._gait.cycle_s, self._gait) < self._gait.duty
 
     def _maybe_push(self, data, info):
         cfg = self._config
@@ -396,11 +427,14 @@ class QuadsonEnv(Env):
             parts.append(info["command"])
         return jnp.concatenate(parts)
 
-    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height) -> dict:
-        """height: the base origin above the ground under it [m]."""
+    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height, contact, stance) -> dict:
+        """height: the base origin above the ground under it [m]; contact, stance: (4,) bool, the
+        feet on the ground and the phase table's stance legs at the end of the step."""
         r = self._config.reward
         return {
-            "forward_velocity_exp": rewards.forward_velocity_exp(lin_vel, r.forward_target, r.forward_sigma),
+            "forward_velocity_exp": rewards.forward_velocity_exp(
+                lin_vel, self._forward_target, r.forward_sigma
+            ),
             "lateral_l2": rewards.lateral_l2(lin_vel, ang_vel),
             "vertical_l2": rewards.vertical_l2(lin_vel, ang_vel),
             "orientation_l2": rewards.orientation_l2(rpy, r.orientation_coeffs),
@@ -411,4 +445,5 @@ class QuadsonEnv(Env):
             "ang_vel_tracking_exp": rewards.ang_vel_tracking_exp(ang_vel, info["command"], r.tracking_sigma),
             "lin_vel_z_l2": rewards.lin_vel_z_l2(lin_vel),
             "ang_vel_xy_l2": rewards.ang_vel_xy_l2(ang_vel),
+            "contact_phase": rewards.contact_phase(contact, stance),
         }

@@ -42,8 +42,9 @@ class Gait(NamedTuple):
     discontinuous: bool = False
 
 
-def gait_params(name: str, swing: str | int | None = None) -> Gait:
-    """The gait `name` of constants.GAITS or "trot_discontinuous", optionally with another swing shape."""
+def gait_params(name: str, swing: str | int | None = None, scale=None) -> Gait:
+    """The gait `name` of constants.GAITS or "trot_discontinuous", optionally with another swing shape
+    and the env config's gait_scale (a mapping of cycle_s, step_length_m, step_height_m factors)."""
     if name == "trot_discontinuous":
         base = dict(C.DISCONTINUOUS_TROT)
     elif name in C.GAITS:
@@ -59,6 +60,10 @@ def gait_params(name: str, swing: str | int | None = None) -> Gait:
         shape = SWING_SHAPES.index(shape)
     base["swing"] = int(shape)
     base["phase_offset"] = np.asarray(base["phase_offset"], np.float64)
+    for key, factor in (scale or {}).items():
+        if key not in ("cycle_s", "step_length_m", "step_height_m"):
+            raise ValueError(f"unknown gait_scale key {key!r}")
+        base[key] = base[key] * float(factor)
     return Gait(**base)
 
 

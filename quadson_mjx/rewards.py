@@ -79,3 +79,9 @@ def lin_vel_z_l2(lin_vel):
 def ang_vel_xy_l2(ang_vel):
     """wx^2 + wy^2 [rad^2/s^2]: roll and pitch rates, leaving the commanded yaw rate free -> (...,)."""
     return jnp.sum(jnp.square(ang_vel[..., :2]), axis=-1)
+
+
+def contact_phase(contact, stance):
+    """Share of the feet (4,) whose ground contact (bool) equals the phase table's stance (bool):
+    1 when touching down exactly in stance and lifted exactly in swing, in [0, 1]."""
+    return jnp.mean((contact == stance).astype(jnp.float32))

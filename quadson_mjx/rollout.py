@@ -171,6 +171,8 @@ class Trajectory(NamedTuple):
     # (T, B, 12) the position targets the step sent to the motors [rad], LEGS x MOTORS (the
     # reference a deployment loop's output is checked against); None where not recorded
     motor_targets: jax.Array | None = None
+    # (T, B, 4) bool: the phase table's stance legs at the end of the step; None where not recorded
+    scheduled_stance: jax.Array | None = None
 
 
 def _set_command(env, state, command):
@@ -261,6 +263,7 @@ def make_rollout(env, controller: Controller, n_steps: int, step_b=None):
             base_height=nxt.metrics["base_height"],
             base_below_terrain=nxt.metrics["base_below_terrain"] > 0,
             motor_targets=nxt.info["last_ctrl"][:, motor_actuator],
+            scheduled_stance=jax.vmap(env.scheduled_stance)(nxt.info["gait_progress"]),
         )
 
         def restart(first, current):

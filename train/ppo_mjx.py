@@ -4,9 +4,12 @@
     python train/ppo_mjx.py --ppo.num_timesteps=50000000 --env.reward.forward_target=0.4
     python train/ppo_mjx.py --preset test --run-dir runs/smoke
     python train/ppo_mjx.py --resume runs/20261121-101500
+    python train/ppo_mjx.py --gait bound --run-dir results/gaits/bound   # a gait's recipe
 
 Env options: --env-preset seed|command|robust (seed 000's formulation; + velocity commands;
-the joystick recipe with domain randomization and pushes). Any config key can be overridden with --env.KEY=VALUE or
+the joystick recipe with domain randomization and pushes). --gait G trains seed 000's gait G with its
+recipe (env_config.GAIT_RECIPES: the gait's speed as target, the contact-pattern reward, domain
+randomization) on top of the env preset. Any config key can be overridden with --env.KEY=VALUE or
 --ppo.KEY=VALUE; an unknown key is an error naming it.
 """
 
@@ -25,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from quadson_mjx import training  # noqa: E402
 from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env_config import check_env_config, env_config  # noqa: E402
+from quadson_mjx.env_config import GAIT_RECIPES, check_env_config, env_config  # noqa: E402
 
 # Training physics of every preset: feet-only ground contact and no joint-limit rows (the episode
 # ends before the base reaches the ground; the IK keeps targets in range): 28 constraint rows
@@ -53,6 +56,12 @@ def parse(argv):
         "--gait-action", action="store_true", help="let the policy also scale step length and cycle time"
     )
     p.add_argument("--terrain", default="flat", choices=["flat", "rough"])
+    p.add_argument(
+        "--gait",
+        default=None,
+        choices=sorted(GAIT_RECIPES),
+        help="train this gait with its recipe (default: the preset's trot, no recipe)",
+    )
     p.add_argument("--run-dir", default=None, help="default: runs/<date-time>")
     p.add_argument(
         "--resume", metavar="RUN_DIR", default=None, help="continue a run from its newest checkpoint"
@@ -108,7 +117,8 @@ def main(argv=None) -> int:
         if not on_gpu and args.preset is None:
             print("No GPU found: running the small 'cpu' preset (minutes). Use a GPU for the real job.")
         try:
-            env_cfg = env_config(terrain=args.terrain, **ENV_PRESETS[args.env_preset])
+            recipe = {"gait": args.gait, "gait_recipe": True} if args.gait else {}
+            env_cfg = env_config(terrain=args.terrain, **ENV_PRESETS[args.env_preset], **recipe)
             env_cfg.gait_action = args.gait_action
             env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
             ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]

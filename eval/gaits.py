@@ -1,0 +1,127 @@
+"""Seed 000's five gaits: open loop, gait + PID and gait + policy, over many randomized episodes.
+
+    python eval/gaits.py --runs results/gaits                 # every gait with a run in results/gaits/<gait>
+    python eval/gaits.py --gaits walk,bound --envs 10 --seconds 5 --json runs/gaits.json
+
+For each gait, the controllers `gait` (open loop), `pid` (gait + seed 003's roll/pitch stabilizer)
+and, where RUNS/<gait> holds a trained run, `policy` each walk --envs episodes of --seconds (seed
+000's 18.75 s by default) at the gait's own forward speed, on flat ground, one randomized model per
+episode (friction, masses, servo strength, latency, centre of mass), in the gait recipe's env config
+(env_config(gait=G, gait_recipe=True) with the training's feet-only contact; a run's own config for
+its policy). Reported per row (quadson_mjx.gait_eval): falls, mean speed against the command,
+roll/pitch std, and how often the feet's contact (from contact forces) matches the gait's phase table.
+Prints a markdown table; --json writes every number.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from quadson_mjx import gait_eval  # noqa: E402
+from quadson_mjx import rollout as R  # noqa: E402
+from quadson_mjx.config import apply_overrides  # noqa: E402
+from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env_config import GAIT_RECIPES, SEED_EPISODE_S, env_config, with_added_keys  # noqa: E402
+
+FIVE = ("walk", "trot", "pace", "bound", "gallop")
+# the training presets' physics (train/ppo_mjx.py FAST_PHYSICS), for gaits without a run
+TRAINING_PHYSICS = {"base_terrain_contact": False, "joint_limits": False}
+
+
+def parse(argv):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--gaits", default=",".join(FIVE), help="comma-separated (default: all five)")
+    p.add_argument("--runs", default=None, help="directory with one trained run per gait: RUNS/<gait>")
+    p.add_argument("--envs", type=int, default=100, help="episodes per row")
+    p.add_argument("--seconds", type=float, default=SEED_EPISODE_S, help="episode length [s]")
+    p.add_argument("--settle-s", type=float, default=1.0, help="start of the measured window [s]")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None, help="write all results here")
+    args = p.parse_args(argv)
+    gaits = [g for g in args.gaits.split(",") if g]
+    bad = [g for g in gaits if g not in GAIT_RECIPES]
+    if bad or not gaits:
+        p.error(f"--gaits: unknown {bad}; choose from {sorted(GAIT_RECIPES)}")
+    if args.envs < 1 or not args.seconds > args.settle_s >= 0:
+        p.error("need --envs >= 1 and --seconds > --settle-s >= 0")
+    if args.runs and not Path(args.runs).is_dir():
+        p.error(f"--runs {args.runs} is not a directory")
+    if args.json and Path(args.json).exists():
+        p.error(f"--json {args.json} exists; give a new path")
+    return args, gaits
+
+
+def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
+    """The gait's rows: gait, pid and (with a run) policy, in the run's env config if there is one."""
+    from quadson_mjx import training
+
+    policy = None
+    if run_dir is not None:
+        policy, env_cfg, _, _ = training.load_policy(run_dir)
+        env_cfg = with_added_keys(env_cfg)
+        if env_cfg.gait != gait:
+            raise ValueError(f"{run_dir} trained the gait {env_cfg.gait!r}, not {gait!r}")
+        if env_cfg.command_tracking or not env_cfg.randomize:
+            env_cfg = apply_overrides(env_cfg, ["command_tracking=false", "randomize=true"])
+    else:
+        env_cfg = env_config(gait=gait, gait_recipe=True, **TRAINING_PHYSICS)
+    env = QuadsonEnv(env_cfg)
+    controllers = [R.gait_only(env), R.pid_stabilizer(env)]
+    if policy is not None:
+        controllers.append(R.policy_controller(policy))
+    rows = []
+    for i, controller in enumerate(controllers):
+        t0 = time.time()
+        rng = jax.random.fold_in(jax.random.PRNGKey(args.seed), i)
+        stats = gait_eval.evaluate(env, controller, rng, args.envs, args.seconds, args.settle_s)
+        rows.append({"gait": gait, "controller": controller.name, "run_dir": str(run_dir or ""), **stats})
+        print(
+            f"{gait} {controller.name}: {stats['falls']}/{stats['episodes']} falls, {time.time() - t0:.0f} s",
+            flush=True,
+        )
+    return rows
+
+
+def markdown(rows: list[dict]) -> str:
+    head = (
+        "| Gait | Controller | Falls | Speed / command [m/s] | Roll std [deg] | Pitch std [deg] "
+        "| Pattern match (exact / +-1 step) | Feet agree | Duty measured (table) |\n"
+        "|---|---|---|---|---|---|---|---|---|"
+    )
+    lines = [head]
+    for r in rows:
+        duty = " ".join(f"{d:.2f}" for d in r["duty_measured"])
+        lines.append(
+            f"| {r['gait']} | {r['controller']} | {r['falls']}/{r['episodes']} "
+            f"| {r['speed_mean']:.3f} +- {r['speed_std']:.3f} / {r['command_vx']:.3f} ({r['speed_ratio']:.2f}) "
+            f"| {r['roll_std_deg']:.2f} | {r['pitch_std_deg']:.2f} "
+            f"| {100 * r['pattern_match']:.1f} % / {100 * r['pattern_match_1step']:.1f} % "
+            f"| {100 * r['foot_agreement']:.1f} % | {duty} ({r['duty_table']:.2f}) |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    args, gaits = parse(argv)
+    rows = []
+    for g in gaits:
+        run = Path(args.runs) / g if args.runs and (Path(args.runs) / g).is_dir() else None
+        rows.extend(rows_for_gait(g, run, args))
+    print(markdown(rows))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        meta = {"envs": args.envs, "seconds": args.seconds, "settle_s": args.settle_s, "seed": args.seed}
+        Path(args.json).write_text(json.dumps({"settings": meta, "rows": rows}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,122 @@
+"""How well a controller walks a gait: falls, speed, body oscillation and the foot-contact pattern.
+
+`evaluate(env, controller, ...)` rolls out B environments for one episode each (one randomized
+model per environment when the env config randomizes; quadson_mjx.rollout) and `gait_stats`
+summarises the trajectory. Everything is measured on each environment's first episode, after
+`settle_s` (the start ramp and the first steps), up to the step where it fell:
+
+* falls: episodes that ended by tilt, height or the base in the ground, out of B.
+* speed: mean body-frame forward velocity [m/s] per episode, then mean and std over episodes;
+  `speed_ratio` = mean / command.
+* roll, pitch std [deg]: per episode, then averaged over episodes.
+* contact pattern: a foot is "down" when its normal contact force exceeds `force_threshold_n`
+  (from MJX's constraint forces, as a foot sensor reads it); the phase table says "stance" when the
+  leg's phase is below the gait's duty (Trajectory.scheduled_stance, at the same instant). Per
+  control step, `pattern_match` is the share of steps where all four feet agree with the table;
+  `pattern_match_1step` lets each foot's touchdown and lift-off fall one control step (20 ms) early
+  or late, so that a touchdown between two 50 Hz samples is not a mismatch; `foot_agreement` is
+  the share of (step, foot) pairs that agree; `duty_measured` (4,) the share of steps each foot is
+  down, against the table's duty.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from quadson_mjx import gait
+from quadson_mjx import rollout as R
+
+FORCE_THRESHOLD_N = 1.0  # a foot carrying less than ~3 % of its share of the ~3 kg robot is "up"
+
+
+def tolerant_agreement(contact: np.ndarray, stance: np.ndarray, tolerance: int) -> np.ndarray:
+    """contact, stance: (T, ...) bool -> (T, ...) bool: contact[t] equals stance[t'] for some
+    |t' - t| <= tolerance (t' inside the array): each transition may be early or late by up to
+    `tolerance` steps."""
+    contact = np.asarray(contact, bool)
+    stance = np.asarray(stance, bool)
+    ok = contact == stance
+    n = contact.shape[0]
+    for d in range(1, tolerance + 1):
+        ok[d:] |= contact[d:] == stance[:-d]
+        ok[: n - d] |= contact[: n - d] == stance[d:]
+    return ok
+
+
+def first_episode_mask(done: np.ndarray) -> np.ndarray:
+    """done: (T, B) bool -> (T, B) bool, True up to and including each env's first done step."""
+    done = np.asarray(done, bool)
+    ended_before = np.cumsum(done, axis=0) - done  # dones strictly before step t
+    return ended_before == 0
+
+
+def gait_stats(
+    traj: R.Trajectory,
+    ctrl_dt: float,
+    command_vx: float,
+    duty: float,
+    settle_s: float = 1.0,
+    force_threshold_n: float = FORCE_THRESHOLD_N,
+) -> dict:
+    """traj: a host Trajectory [T, B] starting at each environment's reset -> dict of results
+    (see the module docstring; SI, angles in degrees where named _deg)."""
+    first = first_episode_mask(traj.done)  # (T, B)
+    fell = np.any(traj.fall & first, axis=0)  # (B,)
+    settle = int(round(settle_s / ctrl_dt))
+    t_index = np.arange(first.shape[0])[:, None]
+    use = first & (t_index >= settle) & ~(traj.done & first)  # steps of the walk, not the fall itself
+    n_env = first.shape[1]
+    speeds, roll_std, pitch_std = [], [], []
+    for b in range(n_env):
+        m = use[:, b]
+        if m.sum() < 2:
+            continue
+        speeds.append(float(np.mean(traj.lin_vel[m, b, 0])))
+        roll_std.append(float(np.std(np.degrees(traj.rpy[m, b, 0]))))
+        pitch_std.append(float(np.std(np.degrees(traj.rpy[m, b, 1]))))
+    contact = traj.foot_force > force_threshold_n  # (T, B, 4)
+    stance = np.asarray(traj.scheduled_stance, bool)
+    strict = np.all(contact == stance, axis=-1)  # (T, B)
+    tolerant = np.all(tolerant_agreement(contact, stance, 1), axis=-1)
+    mean_speed = float(np.mean(speeds)) if speeds else math.nan
+    return {
+        "episodes": int(n_env),
+        "falls": int(np.sum(fell)),
+        "command_vx": float(command_vx),
+        "speed_mean": mean_speed,
+        "speed_std": float(np.std(speeds)) if speeds else math.nan,
+        "speed_ratio": mean_speed / command_vx if command_vx else math.nan,
+        "roll_std_deg": float(np.mean(roll_std)) if roll_std else math.nan,
+        "pitch_std_deg": float(np.mean(pitch_std)) if pitch_std else math.nan,
+        "pattern_match": float(np.mean(strict[use])) if use.any() else math.nan,
+        "pattern_match_1step": float(np.mean(tolerant[use])) if use.any() else math.nan,
+        "foot_agreement": float(np.mean((contact == stance)[use])) if use.any() else math.nan,
+        "duty_measured": [float(v) for v in np.mean(contact[use], axis=0)] if use.any() else [],
+        "duty_table": float(duty),
+        "steps_measured": int(use.sum()),
+    }
+
+
+FIELDS = ("lin_vel", "rpy", "foot_force", "scheduled_stance", "done", "fall")
+
+
+def evaluate(env, controller: R.Controller, rng, n_envs: int, seconds: float, settle_s: float = 1.0) -> dict:
+    """One episode of `seconds` in each of n_envs environments (randomized models when the env
+    config randomizes), the gait's forward command -> gait_stats."""
+    if env.config.command_tracking:
+        raise ValueError(
+            "evaluate runs the gait's own forward command: use an env config without command_tracking"
+        )
+    n_steps = int(round(seconds / env.ctrl_dt))
+    params = env.gait_params
+    command_vx = float(gait.seed_speed(params))
+    parts = []
+    for _, seg in R.run(
+        env, controller, rng, n_envs, n_steps, command=None, randomize=bool(env.config.randomize)
+    ):
+        parts.append({k: getattr(seg, k) for k in FIELDS})
+    joined = {k: np.concatenate([p[k] for p in parts], axis=0) for k in FIELDS}
+    traj = R.Trajectory(**{f: joined.get(f) for f in R.Trajectory._fields})
+    return gait_stats(traj, env.ctrl_dt, command_vx, float(params.duty), settle_s)
