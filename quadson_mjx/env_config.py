@@ -75,13 +75,12 @@ JOYSTICK_WEIGHTS = {"vertical_l2": 0.0, "lin_vel_z_l2": -2.0, "ang_vel_xy_l2": -
 # kernel's width [m/s], about half the gait's speed (a 0.09 m/s walk under a 0.25 m/s kernel earns
 # 94 % of the maximum standing still).
 GAIT_RECIPES = {
-    "walk": {"step_length_m": 1.0, "forward_sigma": 0.1},  # 0.089 m/s
-    "trot": {"step_length_m": 1.0, "forward_sigma": 0.15},  # 0.30 m/s
-    "pace": {"step_length_m": 1.0, "forward_sigma": 0.15},  # 0.34 m/s
-    "bound": {"step_length_m": 0.75, "forward_sigma": 0.25},  # 0.50 m/s (seed: 0.67)
-    "gallop": {"step_length_m": 0.5, "forward_sigma": 0.25},  # 0.60 m/s (seed: 1.2)
+    "walk": {"step_length_m": 1.0, "forward_sigma": 0.1, "contact_phase": 2.0},  # 0.089 m/s
+    "trot": {"step_length_m": 1.0, "forward_sigma": 0.15, "contact_phase": 2.0},  # 0.30 m/s
+    "pace": {"step_length_m": 1.0, "forward_sigma": 0.15, "contact_phase": 2.0},  # 0.34 m/s
+    "bound": {"step_length_m": 0.75, "forward_sigma": 0.25, "contact_phase": 4.0},  # 0.50 m/s (seed: 0.67)
+    "gallop": {"step_length_m": 0.5, "forward_sigma": 0.25, "contact_phase": 4.0},  # 0.60 m/s (seed: 1.2)
 }
-GAIT_RECIPE_CONTACT_WEIGHT = 0.5  # reward.weights.contact_phase of the recipes
 
 # Env keys added after runs were already published, with the value that reproduces what those runs
 # did (dotted names). A config saved before a key existed gets it from `with_added_keys`, which the
@@ -239,7 +238,7 @@ def env_config(
         cfg.gait_scale.step_length_m = recipe["step_length_m"]
         cfg.reward.forward_sigma = recipe["forward_sigma"]
         cfg.reward.target_gait_speed = True
-        cfg.reward.weights.contact_phase = GAIT_RECIPE_CONTACT_WEIGHT
+        cfg.reward.weights.contact_phase = recipe["contact_phase"]
     cfg.lock()
     return cfg
 

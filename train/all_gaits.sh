@@ -9,7 +9,7 @@
 set -u
 out=${1:-results/gaits}
 mkdir -p "$out"
-declare -A steps=([walk]=30000000 [trot]=30000000 [pace]=36000000 [bound]=56000000 [gallop]=56000000)
+declare -A steps=([walk]=30000000 [trot]=30000000 [pace]=80000000 [bound]=80000000 [gallop]=80000000)
 pids=()
 for g in walk trot pace bound gallop; do
   XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.18} \
