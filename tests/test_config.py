@@ -108,6 +108,8 @@ def test_network_sizes_take_any_depth():
         ("randomization.friction=(0, 1)", "env.randomization.friction"),
         ("reward.weights.torque_l2=1e999", "env.reward.weights.torque_l2"),
         ("noise.rpy=-0.1", "env.noise.rpy"),
+        ("gait_scale.cycle_s=0", "env.gait_scale.cycle_s"),
+        ("gait_scale.step_length_m=-1", "env.gait_scale.step_length_m"),
     ],
 )
 def test_env_config_values_out_of_range_are_errors_naming_the_key_regression(override, key):
