@@ -361,7 +361,9 @@ class QuadsonEnv(Env):
 
     def foot_contact(self, data) -> jax.Array:
         """(4,) bool, LEGS order: the foot's collision sphere touches the ground (a contact of that
-        geom with negative distance; the model has no contact margin)."""
+        geom with negative distance; the model has no contact margin). After mjx.step these are the
+        contacts of the last physics substep's start (MuJoCo detects contacts before it integrates),
+        one timestep (4 ms) before the control step's end."""
         c = data._impl.contact
         involved = (c.geom1[None, :] == self._foot_geoms[:, None]) | (
             c.geom2[None, :] == self._foot_geoms[:, None]
@@ -429,7 +431,8 @@ class QuadsonEnv(Env):
 
     def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height, contact, stance) -> dict:
         """height: the base origin above the ground under it [m]; contact, stance: (4,) bool, the
-        feet on the ground and the phase table's stance legs at the end of the step."""
+        feet on the ground (at the last substep, foot_contact) and the phase table's stance legs at
+        the end of the step."""
         r = self._config.reward
         return {
             "forward_velocity_exp": rewards.forward_velocity_exp(

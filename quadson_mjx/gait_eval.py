@@ -11,7 +11,8 @@ summarises the trajectory. Everything is measured on each environment's first ep
 * roll, pitch std [deg]: per episode, then averaged over episodes.
 * contact pattern: a foot is "down" when its normal contact force exceeds `force_threshold_n`
   (from MJX's constraint forces, as a foot sensor reads it); the phase table says "stance" when the
-  leg's phase is below the gait's duty (Trajectory.scheduled_stance, at the same instant). Per
+  leg's phase is below the gait's duty (Trajectory.scheduled_stance, at the end of the control
+  step; the forces are those of the last 4 ms physics substep, MuJoCo's contact timing). Per
   control step, `pattern_match` is the share of steps where all four feet agree with the table;
   `pattern_match_1step` lets each foot's touchdown and lift-off fall one control step (20 ms) early
   or late, so that a touchdown between two 50 Hz samples is not a mismatch; `foot_agreement` is

@@ -23,7 +23,6 @@ from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import QuadsonEnv
 from quadson_mjx.env_config import (
-    GAIT_RECIPE_CONTACT_WEIGHT,
     GAIT_RECIPES,
     check_env_config,
     env_config,
@@ -181,7 +180,7 @@ def test_every_recipe_builds_and_passes_the_checks(name):
     check_env_config(cfg)
     assert cfg.gait == name and cfg.randomize is True
     assert cfg.reward.target_gait_speed is True
-    assert cfg.reward.weights.contact_phase == GAIT_RECIPE_CONTACT_WEIGHT > 0
+    assert cfg.reward.weights.contact_phase == GAIT_RECIPES[name]["contact_phase"] > 0
     assert cfg.gait_scale.step_length_m == GAIT_RECIPES[name]["step_length_m"]
     assert cfg.reward.forward_sigma == GAIT_RECIPES[name]["forward_sigma"]
     assert cfg.gait_scale.cycle_s == cfg.gait_scale.step_height_m == 1.0
@@ -330,7 +329,9 @@ def test_contact_reward_and_metric_by_hand(env, states):
             continue
         stance = _stance_by_hand(s.info["gait_progress"])
         match = np.mean(contact == stance)
-        assert float(s.metrics["reward/contact_phase"]) == pytest.approx(GAIT_RECIPE_CONTACT_WEIGHT * match)
+        assert float(s.metrics["reward/contact_phase"]) == pytest.approx(
+            GAIT_RECIPES["bound"]["contact_phase"] * match
+        )
         assert float(s.metrics["contact_match"]) == pytest.approx(match)
         checked += 1
     assert checked >= 10
@@ -440,6 +441,6 @@ def test_ppo_gait_trains_the_recipe(ppo_cli, monkeypatch, tmp_path):
     assert cfg.gait == "bound" and cfg.randomize is True
     assert cfg.gait_scale.step_length_m == GAIT_RECIPES["bound"]["step_length_m"]
     assert cfg.reward.target_gait_speed is True
-    assert cfg.reward.weights.contact_phase == GAIT_RECIPE_CONTACT_WEIGHT
+    assert cfg.reward.weights.contact_phase == GAIT_RECIPES["bound"]["contact_phase"]
     assert cfg.base_terrain_contact is False and cfg.joint_limits is False  # the training physics
     assert float(gait.seed_speed(env_gait(cfg))) == pytest.approx(BOUND_SPEED)
