@@ -15,6 +15,7 @@ at each function.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import mujoco
@@ -56,7 +57,11 @@ PAPER_TABLE_3 = {  # seed 003, Table III, uneven ground, 10 samples per test
 TABLE_1_LEG = "FL"
 TABLE_1_ARRIVAL_TOL_M = 0.002  # the foot "reached the final point": within 2 mm of it (3-D distance)
 TABLE_1_SAMPLE_S = 1.0  # recorded per sample from the first command; the cycloid ends at 0.48 s
-TABLE_1_JOINT_NOISE_RAD = math.radians(0.5)  # std of the initial joint angles (what varies per sample)
+TABLE_1_JOINT_NOISE_RAD = math.radians(0.5)  # std of the initial joint angles
+# Servo-to-servo spread of the position gain: std 3 % of kp per servo (assumed; MX-28 units are not
+# identical). With the joint noise, what varies between samples; the settle before each sample erases
+# the joint noise alone (the P servos return to the same rest), so without it every sample is equal.
+SERVO_KP_SPREAD = 0.03
 SETTLE_S = 0.5  # hold the start pose before a Table I sample
 WALK_SETTLE_S = 1.0  # stand in `home` before a walk
 WALK_JOINT_NOISE_RAD = math.radians(0.5)
@@ -69,6 +74,16 @@ def _steps_per_tick(model: mujoco.MjModel) -> int:
     if abs(n * model.opt.timestep - C.TICK_S) > 1e-9:
         raise ValueError(f"tick {C.TICK_S} s is not a multiple of the timestep {model.opt.timestep} s")
     return n
+
+
+def perturbed_model(model: mujoco.MjModel, rng: np.random.Generator) -> mujoco.MjModel:
+    """A copy of `model` with each servo's kp scaled by 1 + N(0, SERVO_KP_SPREAD) (gain and bias)."""
+    out = copy.copy(model)
+    act = M.actuator_ids(out)
+    kp = model.actuator_gainprm[act, 0] * (1.0 + rng.normal(0.0, SERVO_KP_SPREAD, len(act)))
+    out.actuator_gainprm[act, 0] = kp
+    out.actuator_biasprm[act, 1] = -kp
+    return out
 
 
 def rpy(quat) -> np.ndarray:
@@ -92,21 +107,24 @@ def leg_tracking_sample(
     p_t: float = 1.0,
     p_n: float = 1.0,
     model: mujoco.MjModel | None = None,
+    duration_s: float | None = None,
 ) -> dict:
     """One sample of seed 003's experiment 1: the TABLE_1_LEG foot follows the cycloid from its home
     point to home + (dx, dy, 0) [m], height H [m], period T [s], N = T / 20 ms points spaced by P_T,
     P_N, one per tick; the base is welded in the air ("fixed" model), the other legs hold home.
 
-    What varies with `seed`: the initial joint angles (home + N(0, 0.5 deg) on all 12 joints); each
-    sample first holds the home command for SETTLE_S, so it starts from the servos' own rest.
+    What varies with `seed`: each servo's kp (`perturbed_model`) and the initial joint angles (home +
+    N(0, 0.5 deg) on all 12 joints); each sample first holds the home command for SETTLE_S, so it
+    starts from the servos' own rest. The arrival time is interpolated between physics steps.
     -> dict: time_s (first time after the first command that the foot is within
-    TABLE_1_ARRIVAL_TOL_M of the final point; NaN if never in TABLE_1_SAMPLE_S), apex_m (highest foot
-    point above its start), final_x_m / final_y_m (displacement at TABLE_1_SAMPLE_S), and the sampled
+    TABLE_1_ARRIVAL_TOL_M of the final point; NaN if never), apex_m (highest foot point above its
+    start), final_x_m / final_y_m (displacement at the end), over duration_s [s] from the first command
+    (default TABLE_1_SAMPLE_S, or period_s + 0.5 s for a longer period), and the sampled
     trace t_s (n,), foot_m (n, 3) and the commanded points cmd_m (N, 3), all relative to the start.
     """
-    model = M.load_model("fixed") if model is None else model
-    data = mujoco.MjData(model)
     rng = np.random.default_rng(seed)
+    model = perturbed_model(M.load_model("fixed") if model is None else model, rng)
+    data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, M.home_key(model))
     qadr = M.joint_qposadr(model)
     act = M.actuator_ids(model)
@@ -128,7 +146,9 @@ def leg_tracking_sample(
     targets = [np.asarray(G.stabilized_joint_targets(f, np.zeros(2))[0]).ravel() for f in feet]
 
     foot0 = data.site_xpos[site].copy()
-    n_steps = round(TABLE_1_SAMPLE_S / model.opt.timestep)
+    if duration_s is None:
+        duration_s = max(TABLE_1_SAMPLE_S, period_s + 0.5)
+    n_steps = round(duration_s / model.opt.timestep)
     trace = np.empty((n_steps + 1, 3))
     trace[0] = 0.0
     for s in range(n_steps):
@@ -139,10 +159,16 @@ def leg_tracking_sample(
         trace[s + 1] = data.site_xpos[site] - foot0
     t = np.arange(n_steps + 1) * model.opt.timestep
     goal = cmd[-1] - cmd[0]
-    near = np.linalg.norm(trace - goal, axis=-1) <= TABLE_1_ARRIVAL_TOL_M
+    dist = np.linalg.norm(trace - goal, axis=-1)
+    near = dist <= TABLE_1_ARRIVAL_TOL_M
     near[t < 0.5 * period_s] = False  # the start of a short move may lie within the tolerance
+    arrival = float("nan")
+    if near.any():
+        i = int(np.argmax(near))  # first step within the tolerance; interpolate the crossing linearly
+        a, b = dist[i - 1], dist[i]
+        arrival = float(t[i - 1] + (t[i] - t[i - 1]) * (a - TABLE_1_ARRIVAL_TOL_M) / max(a - b, 1e-12))
     return {
-        "time_s": float(t[np.argmax(near)]) if near.any() else float("nan"),
+        "time_s": arrival,
         "apex_m": float(trace[:, 2].max()),
         "final_x_m": float(trace[-1, 0]),
         "final_y_m": float(trace[-1, 1]),
@@ -209,7 +235,8 @@ def walk_sample(
 
     pid: seed 003's roll / pitch stabilizer (stabilizer.pid_step at 50 Hz on the IMU's roll and
     pitch; its output tilts the feet about the body centre before IK, gait.tilt_feet).
-    What varies with `seed`: the initial joint angles (home + N(0, 0.5 deg)) and, on the rough
+    What varies with `seed`: each servo's kp (`perturbed_model`), the initial joint angles (home +
+    N(0, 0.5 deg)) and, on the rough
     scene, the start point, uniform in ROUGH_START_X x ROUGH_START_Y (on flat ground, in +-0.5 m).
     The robot is placed with its feet just above the ground and stands WALK_SETTLE_S in `home`.
     -> dict: velocity_mps (travel along the start heading / time), yaw_rate_radps (yaw turned / time),
@@ -217,9 +244,9 @@ def walk_sample(
     oscillation), time_s, fell (tilt over 45 deg or base below 0.08 m), invalid_ticks (ticks with a
     foot target out of reach or limits; the servos get the clipped angles).
     """
-    model = M.load_model(scene)
-    data = mujoco.MjData(model)
     rng = np.random.default_rng(seed)
+    model = perturbed_model(M.load_model(scene), rng)
+    data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, M.home_key(model))
     qadr = M.joint_qposadr(model)
     act = M.actuator_ids(model)

@@ -114,6 +114,7 @@ def tilt_feet(feet: jax.Array, roll_pitch: jax.Array) -> jax.Array:
 def joint_targets(feet: jax.Array) -> tuple[jax.Array, jax.Array]:
     """feet (..., 4, 3) in the body frame [m] -> angles (..., 4, 3) [rad] (serial_ik in each hip frame,
     clipped to the joint limits as the position actuators' ctrlrange does), valid (..., 4)."""
+    feet = jnp.asarray(feet)
     hip = jnp.asarray(C.HIP_POS, feet.dtype)
     side = jnp.asarray(C.SIDE, feet.dtype)
     q, valid = serial.serial_ik(feet - hip, C.LEG, side, limits=C.JOINT_LIMITS)
