@@ -86,3 +86,15 @@ def test_pid_walk_on_rough_is_finite():
     r = E.walk_sample("rough", (0.05, 0.0, 0.0), pid=True, seed=0, max_time_s=3.0)
     assert not r["fell"]
     assert all(math.isfinite(r[k]) for k in ("velocity_mps", "roll_deg", "pitch_deg", "yaw_rate_radps"))
+
+
+def test_perturbed_model_spreads_kp_only():
+    from quadson_mjx.robots.caramel import model as M
+
+    m = M.load_model("fixed")
+    p = E.perturbed_model(m, np.random.default_rng(0))
+    kp = p.actuator_gainprm[:, 0]
+    np.testing.assert_allclose(m.actuator_gainprm[:, 0], C.SERVO_KP, rtol=1e-8)  # original untouched
+    np.testing.assert_array_equal(p.actuator_biasprm[:, 1], -kp)  # still a position servo
+    assert 0.0 < np.std(kp / C.SERVO_KP) < 0.1 and np.all(np.abs(kp / C.SERVO_KP - 1) < 0.15)
+    np.testing.assert_array_equal(p.actuator_forcerange, m.actuator_forcerange)

@@ -16,8 +16,10 @@ at each function.
 from __future__ import annotations
 
 import copy
+import functools
 import math
 
+import jax
 import mujoco
 import numpy as np
 
@@ -140,7 +142,7 @@ def leg_tracking_sample(
     start_cmd = M.home_feet()[leg]  # hip frame
     land = start_cmd + np.array([displacement_m[0], displacement_m[1], 0.0])
     u = swing.cycloid_tick_times(period_s, p_t, p_n, C.TICK_S) / period_s
-    cmd = G._cycloid(u, start_cmd, land, height)  # (N, 3) hip frame
+    cmd = G.cycloid_points(u, start_cmd, land, height)  # (N, 3) hip frame
     feet = np.repeat(M.home_feet()[None] + C.HIP_POS, len(cmd), axis=0)  # (N, 4, 3) body frame
     feet[:, leg] = cmd + C.HIP_POS[leg]
     targets = [np.asarray(G.stabilized_joint_targets(f, np.zeros(2))[0]).ravel() for f in feet]
@@ -308,15 +310,9 @@ def walk_sample(
     }
 
 
-_PID_STEP = []
-
-
+@functools.cache
 def _jitted_pid_step():
-    if not _PID_STEP:
-        import jax
-
-        _PID_STEP.append(jax.jit(stabilizer.pid_step))
-    return _PID_STEP[0]
+    return jax.jit(stabilizer.pid_step)
 
 
 def table_2(n_samples: int = 10, **kw) -> dict:

@@ -42,7 +42,7 @@ def _rot_z(theta: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _cycloid(u: np.ndarray, lift: np.ndarray, land: np.ndarray, height: float) -> np.ndarray:
+def cycloid_points(u: np.ndarray, lift: np.ndarray, land: np.ndarray, height: float) -> np.ndarray:
     """swing.cycloid_swing in Caramel's z-up frame: u (n,), lift, land (..., 3) -> (n, ..., 3).
 
     swing.py's curves lift along its frame's +y; swapping y and z (its own inverse) maps ours onto it.
@@ -76,7 +76,7 @@ def trot_feet(
     theta = wz * shift_s
     p = nominal_feet()
     land = p @ _rot_z(theta).T + t
-    along = _cycloid(u, np.zeros(3), np.array([1.0, 0.0, 0.0]), 0.0)[:, 0]  # (n,) shift profile 0 -> 1
+    along = cycloid_points(u, np.zeros(3), np.array([1.0, 0.0, 0.0]), 0.0)[:, 0]  # (n,) shift profile 0 -> 1
 
     feet = nominal_feet()
     out = []
@@ -84,7 +84,7 @@ def trot_feet(
     for k in range(n_phases):
         if k % 2 == 0:  # swing of pair A (k = 0, 4, ...) or B (k = 2, 6, ...)
             moving = _SWING_PAIRS[(k // 2) % 2]
-            curve = _cycloid(u, feet, land, height)  # (n, 4, 3)
+            curve = cycloid_points(u, feet, land, height)  # (n, 4, 3)
             phase = np.where(moving[None, :, None], curve, feet[None])
         else:  # body shift: R(-s theta)(f - s t), s the cycloid profile
             rel = feet[None] - along[:, None, None] * t
