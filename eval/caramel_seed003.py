@@ -1,0 +1,92 @@
+"""Seed 003's experiments (Tables I, II, III) on the Caramel model in CPU MuJoCo, next to the paper.
+
+    python eval/caramel_seed003.py                       # 30 / 10 / 10 samples, as the paper
+    python eval/caramel_seed003.py --samples-1 5 --samples-23 2 --json runs/caramel_seed003.json
+
+Writes a JSON of the measured and published numbers and prints markdown tables (mean +- sample std).
+The experiments themselves are quadson_mjx.robots.caramel.experiments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from quadson_mjx.robots.caramel import experiments as E  # noqa: E402
+
+
+def _cell(pair, scale=1.0, digits=3) -> str:
+    m, s = pair
+    return f"{m * scale:.{digits}f} ± {s * scale:.{digits}f}"
+
+
+def markdown(result: dict) -> str:
+    """Markdown tables of a result dict (see main), measured next to published."""
+    lines = ["Table I (single leg in the air, cycloid H 5 cm, T 0.5 s, 25 points, P_T = P_N = 1)", ""]
+    lines += ["| quantity | Test 1 sim | Test 1 paper | Test 2 sim | Test 2 paper |", "|---|---|---|---|---|"]
+    t1 = result["table_1"]
+    rows = [("time [s]", "time_s", 1.0, 3), ("apex [cm]", "apex_m", 100, 3)]
+    rows += [("final x [cm]", "final_x_m", 100, 3), ("final y [cm]", "final_y_m", 100, 3)]
+    for label, key, sc, dg in rows:
+        cells = []
+        for test in ("test1", "test2"):
+            cells += [_cell(t1[test][key], sc, dg), _cell(E.PAPER_TABLE_1[test][key], sc, dg)]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    lines += ["", "Table II (trot forward 0.05 m/s; H 5 cm, T 0.5 s, P_T 0.66, P_N 0.33)", ""]
+    lines += [
+        "| test | velocity [cm/s] sim | paper | Δroll [deg] sim | paper | Δpitch [deg] sim | paper | fell |"
+    ]
+    lines += ["|---|---|---|---|---|---|---|---|"]
+    for name, paper in E.PAPER_TABLE_2.items():
+        r = result["table_2"][name]
+        lines.append(
+            f"| {name} | {_cell(r['velocity_mps'], 100, 2)} | {_cell(paper['velocity_mps'], 100, 3)} "
+            f"| {_cell(r['roll_deg'], 1, 2)} | {_cell(paper['roll_deg'], 1, 2)} "
+            f"| {_cell(r['pitch_deg'], 1, 2)} | {_cell(paper['pitch_deg'], 1, 2)} | {r['fell']}/{r['n']} |"
+        )
+    lines += ["", "Table III (turn in place 0.25 rad/s, rough ground)", ""]
+    lines += [
+        "| test | yaw rate [rad/s] sim | paper | Δroll [deg] sim | paper | Δpitch [deg] sim | paper | fell |"
+    ]
+    lines += ["|---|---|---|---|---|---|---|---|"]
+    for name, paper in E.PAPER_TABLE_3.items():
+        r = result["table_3"][name]
+        lines.append(
+            f"| {name} | {_cell(r['yaw_rate_radps'], 1, 3)} | {_cell(paper['yaw_rate_radps'], 1, 3)} "
+            f"| {_cell(r['roll_deg'], 1, 2)} | {_cell(paper['roll_deg'], 1, 2)} "
+            f"| {_cell(r['pitch_deg'], 1, 2)} | {_cell(paper['pitch_deg'], 1, 2)} | {r['fell']}/{r['n']} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--samples-1", type=int, default=30, help="samples per test of Table I")
+    ap.add_argument("--samples-23", type=int, default=10, help="samples per test of Tables II and III")
+    ap.add_argument("--max-time-s", type=float, default=90.0, help="time limit of one walk [s]")
+    ap.add_argument("--json", type=Path, default=None, help="write the results here")
+    args = ap.parse_args(argv)
+    t0 = time.time()
+    result = {
+        "table_1": E.table_1(args.samples_1),
+        "table_2": E.table_2(args.samples_23, max_time_s=args.max_time_s),
+        "table_3": E.table_3(args.samples_23, max_time_s=args.max_time_s),
+        "paper": {"table_1": E.PAPER_TABLE_1, "table_2": E.PAPER_TABLE_2, "table_3": E.PAPER_TABLE_3},
+        "command": "python eval/caramel_seed003.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+    }
+    result["wall_s"] = time.time() - t0
+    print(markdown(result))
+    print(f"\n{result['wall_s']:.0f} s")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2))
+    return result
+
+
+if __name__ == "__main__":
+    main()

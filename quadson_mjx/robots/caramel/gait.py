@@ -1,0 +1,128 @@
+"""Caramel's discontinuous trot (seed 003 section II-B/C) and body kinematics for the stabilizer.
+
+The planner runs at 50 Hz in phases of T = 0.5 s (N = 25 ticks each), cycling
+    swing FR + RL -> body shift -> swing FL + RR -> body shift
+(seed 003 Fig. 2: "the robot's body moves only when all the legs are on the ground"; robots.md lists
+the cycle from a body shift, we start it with a swing so that the first step is a half step from the
+standing pose). Every phase replays seed 003's N trajectory points one per tick, spaced by P_T / P_N
+(`swing.cycloid_tick_times`). Swing: the cycloid of seed 003 eq. 1-4 (`swing.cycloid_swing`) from
+the lift-off point to the landing point, height H. Body shift: all four feet stay on the ground and
+the body moves along the same cycloid profile (height 0) by one shift of the body twist
+(vx, vy, yaw_rate) x 2T: the average body velocity over a 4T cycle is the command.
+
+Landing point of a swinging foot (body frame): R(theta) p + t, with p its nominal foot (under the
+leg plane, STANCE_HEIGHT below the hip), t = (vx, vy) 2T and theta = yaw_rate 2T one shift's
+translation and yaw: after the next shift it is at p, after the one after at R(-theta)(p - t).
+
+Frames: feet are (..., 4, 3) in the body frame [m] (x forward, y left, z up, origin at the hips'
+centre); joint angles (..., 4, 3) serial.py's q [rad], leg order constants.LEGS.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from quadson_mjx import serial, swing
+from quadson_mjx.robots.caramel import constants as C
+
+PHASES_PER_CYCLE = 4  # swing A, shift, swing B, shift
+_SWING_PAIRS = tuple(np.array([leg in pair for leg in C.LEGS]) for pair in C.TROT_PAIRS)  # (4,) masks
+
+
+def nominal_feet() -> np.ndarray:
+    """(4, 3) nominal feet in the body frame [m]: (hip x, hip y + side L1, -STANCE_HEIGHT)."""
+    off = np.stack([np.zeros(4), C.SIDE * C.LEG.hip_offset, np.full(4, -C.STANCE_HEIGHT)], axis=-1)
+    return C.HIP_POS + off
+
+
+def _rot_z(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def cycloid_points(u: np.ndarray, lift: np.ndarray, land: np.ndarray, height: float) -> np.ndarray:
+    """swing.cycloid_swing in Caramel's z-up frame: u (n,), lift, land (..., 3) -> (n, ..., 3).
+
+    swing.py's curves lift along its frame's +y; swapping y and z (its own inverse) maps ours onto it.
+    """
+    perm = [0, 2, 1]
+    u = np.asarray(u, float).reshape((-1,) + (1,) * (np.ndim(lift) - 1))
+    out = swing.cycloid_swing(u, np.asarray(lift)[..., perm], np.asarray(land)[..., perm], height)
+    return np.asarray(out, float)[..., perm]
+
+
+def trot_feet(
+    n_ticks: int,
+    command=(0.05, 0.0, 0.0),
+    height: float = C.STEP_HEIGHT,
+    period_s: float = C.STEP_PERIOD,
+    p_t: float = C.TROT_P_T,
+    p_n: float = C.TROT_P_N,
+) -> np.ndarray:
+    """Foot targets of the discontinuous trot, one per 50 Hz tick.
+
+    n_ticks: number of ticks from the start (standing at nominal_feet); command: (vx [m/s],
+    vy [m/s], yaw_rate [rad/s]) body twist averaged over a cycle; height H [m], period T [s],
+    P_T, P_N: seed 003's trajectory parameters -> (n_ticks, 4, 3) feet in the body frame [m].
+    """
+    tick_times = swing.cycloid_tick_times(period_s, p_t, p_n, C.TICK_S)
+    n = len(tick_times)
+    u = tick_times / period_s  # (n,) trajectory progress of each tick of a phase
+    vx, vy, wz = (float(c) for c in command)
+    shift_s = 2.0 * period_s  # body moves during one of every two phases
+    t = np.array([vx, vy, 0.0]) * shift_s
+    theta = wz * shift_s
+    p = nominal_feet()
+    land = p @ _rot_z(theta).T + t
+    along = cycloid_points(u, np.zeros(3), np.array([1.0, 0.0, 0.0]), 0.0)[:, 0]  # (n,) shift profile 0 -> 1
+
+    feet = nominal_feet()
+    out = []
+    n_phases = -(-n_ticks // n)
+    for k in range(n_phases):
+        if k % 2 == 0:  # swing of pair A (k = 0, 4, ...) or B (k = 2, 6, ...)
+            moving = _SWING_PAIRS[(k // 2) % 2]
+            curve = cycloid_points(u, feet, land, height)  # (n, 4, 3)
+            phase = np.where(moving[None, :, None], curve, feet[None])
+        else:  # body shift: R(-s theta)(f - s t), s the cycloid profile
+            rel = feet[None] - along[:, None, None] * t
+            phase = np.stack([rel[i] @ _rot_z(-along[i] * theta).T for i in range(n)])
+            phase[..., 2] = feet[..., 2]
+        out.append(phase)
+        feet = phase[-1].copy()
+    return np.concatenate(out)[:n_ticks]
+
+
+def tilt_feet(feet: jax.Array, roll_pitch: jax.Array) -> jax.Array:
+    """Body kinematics: feet (..., 4, 3) [m] for a level body -> the same ground points seen from a
+    body rotated by roll_pitch (..., 2) [rad] about its centre (R = Ry(pitch) Rx(roll)): R^T f."""
+    r, p = roll_pitch[..., 0], roll_pitch[..., 1]
+    cr, sr, cp, sp = jnp.cos(r), jnp.sin(r), jnp.cos(p), jnp.sin(p)
+    zero, one = jnp.zeros_like(r), jnp.ones_like(r)
+    rx = jnp.stack(
+        [jnp.stack([one, zero, zero], -1), jnp.stack([zero, cr, -sr], -1), jnp.stack([zero, sr, cr], -1)], -2
+    )
+    ry = jnp.stack(
+        [jnp.stack([cp, zero, sp], -1), jnp.stack([zero, one, zero], -1), jnp.stack([-sp, zero, cp], -1)], -2
+    )
+    rot = ry @ rx  # (..., 3, 3)
+    return jnp.einsum("...ji,...lj->...li", rot, feet)  # R^T f for each foot
+
+
+def joint_targets(feet: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """feet (..., 4, 3) in the body frame [m] -> angles (..., 4, 3) [rad] (serial_ik in each hip frame,
+    clipped to the joint limits as the position actuators' ctrlrange does), valid (..., 4)."""
+    feet = jnp.asarray(feet)
+    hip = jnp.asarray(C.HIP_POS, feet.dtype)
+    side = jnp.asarray(C.SIDE, feet.dtype)
+    q, valid = serial.serial_ik(feet - hip, C.LEG, side, limits=C.JOINT_LIMITS)
+    lim = jnp.asarray(C.JOINT_LIMITS, q.dtype)
+    return jnp.clip(q, lim[:, 0], lim[:, 1]), valid
+
+
+@jax.jit
+def stabilized_joint_targets(feet: jax.Array, roll_pitch: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """feet (4, 3) [m], stabilizer's body roll/pitch command (2,) [rad] -> angles (4, 3), valid (4,)."""
+    return joint_targets(tilt_feet(feet, roll_pitch))
