@@ -90,6 +90,11 @@ def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
     return rows
 
 
+def _f(v: float, fmt: str) -> str:
+    """A number, or a dash where nothing was measured (every episode fell before the window)."""
+    return "-" if v != v else format(v, fmt)
+
+
 def markdown(rows: list[dict]) -> str:
     head = (
         "| Gait | Controller | Falls | Speed / command [m/s] | Roll std [deg] | Pitch std [deg] "
@@ -101,10 +106,10 @@ def markdown(rows: list[dict]) -> str:
         duty = " ".join(f"{d:.2f}" for d in r["duty_measured"])
         lines.append(
             f"| {r['gait']} | {r['controller']} | {r['falls']}/{r['episodes']} "
-            f"| {r['speed_mean']:.3f} +- {r['speed_std']:.3f} / {r['command_vx']:.3f} ({r['speed_ratio']:.2f}) "
-            f"| {r['roll_std_deg']:.2f} | {r['pitch_std_deg']:.2f} "
-            f"| {100 * r['pattern_match']:.1f} % / {100 * r['pattern_match_1step']:.1f} % "
-            f"| {100 * r['foot_agreement']:.1f} % | {duty} ({r['duty_table']:.2f}) |"
+            f"| {_f(r['speed_mean'], '.3f')} +- {_f(r['speed_std'], '.3f')} / {r['command_vx']:.3f} "
+            f"({_f(r['speed_ratio'], '.2f')}) | {_f(r['roll_std_deg'], '.2f')} | {_f(r['pitch_std_deg'], '.2f')} "
+            f"| {_f(100 * r['pattern_match'], '.1f')} % / {_f(100 * r['pattern_match_1step'], '.1f')} % "
+            f"| {_f(100 * r['foot_agreement'], '.1f')} % | {duty or '-'} ({r['duty_table']:.2f}) |"
         )
     return "\n".join(lines)
 
