@@ -198,6 +198,7 @@ def test_old_run_configs_load_with_their_behaviour():
         for p in path:
             node = node[p]
         del node[leaf]
+    now = {k: v for k, v in now.items() if v != {}}  # a group whose every key is new (gait_scale)
     assert now == published
     assert math.isinf(float(QuadsonEnv(env_config()).sample_command(jax.random.PRNGKey(0))[1]))
 
