@@ -45,6 +45,15 @@ def parse(argv):
     p.add_argument("--settle-s", type=float, default=1.0, help="start of the measured window [s]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None, help="write all results here")
+    p.add_argument("--controllers", default="gait,pid,policy", help="comma-separated rows to run")
+    p.add_argument(
+        "--footfalls",
+        type=float,
+        nargs=2,
+        metavar=("START_S", "END_S"),
+        default=None,
+        help="print environment 0's footfall diagram over this window of each row",
+    )
     args = p.parse_args(argv)
     gaits = [g for g in args.gaits.split(",") if g]
     bad = [g for g in gaits if g not in GAIT_RECIPES]
@@ -54,6 +63,12 @@ def parse(argv):
         p.error("need --envs >= 1 and --seconds > --settle-s >= 0")
     if args.runs and not Path(args.runs).is_dir():
         p.error(f"--runs {args.runs} is not a directory")
+    controllers = [c for c in args.controllers.split(",") if c]
+    if not controllers or any(c not in ("gait", "pid", "policy") for c in controllers):
+        p.error(f"--controllers takes gait, pid, policy; got {args.controllers!r}")
+    args.controllers = controllers
+    if args.footfalls and not 0 <= args.footfalls[0] < args.footfalls[1] <= args.seconds:
+        p.error("--footfalls needs 0 <= START_S < END_S <= --seconds")
     if args.json and Path(args.json).exists():
         p.error(f"--json {args.json} exists; give a new path")
     return args, gaits
@@ -74,15 +89,20 @@ def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
     else:
         env_cfg = env_config(gait=gait, gait_recipe=True, **TRAINING_PHYSICS)
     env = QuadsonEnv(env_cfg)
-    controllers = [R.gait_only(env), R.pid_stabilizer(env)]
-    if policy is not None:
+    controllers = [c for c in (R.gait_only(env), R.pid_stabilizer(env)) if c.name in args.controllers]
+    if policy is not None and "policy" in args.controllers:
         controllers.append(R.policy_controller(policy))
     rows = []
-    for i, controller in enumerate(controllers):
+    for controller in controllers:
+        i = ("gait", "pid", "policy").index(controller.name)  # the same draws whichever rows run
         t0 = time.time()
         rng = jax.random.fold_in(jax.random.PRNGKey(args.seed), i)
-        stats = gait_eval.evaluate(env, controller, rng, args.envs, args.seconds, args.settle_s)
+        stats = gait_eval.evaluate(
+            env, controller, rng, args.envs, args.seconds, args.settle_s, footfall_s=args.footfalls
+        )
         rows.append({"gait": gait, "controller": controller.name, "run_dir": str(run_dir or ""), **stats})
+        for line in stats.get("footfalls", []):
+            print(f"  {line}")
         print(
             f"{gait} {controller.name}: {stats['falls']}/{stats['episodes']} falls, {time.time() - t0:.0f} s",
             flush=True,

@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from quadson_mjx import constants as C
 from quadson_mjx import gait
 from quadson_mjx import rollout as R
 
@@ -100,12 +101,32 @@ def gait_stats(
     }
 
 
+def footfall_lines(contact: np.ndarray, stance: np.ndarray, legs=C.LEGS) -> list[str]:
+    """A footfall diagram as text, one character per control step: contact, stance (T, 4) bool ->
+    per leg two lines, the phase table ('#' stance, '.' swing) and the feet measured ('#' down)."""
+    lines = []
+    for i, leg in enumerate(legs):
+        lines.append(f"{leg} table {''.join('#' if v else '.' for v in stance[:, i])}")
+        lines.append(f"{leg} feet  {''.join('#' if v else '.' for v in contact[:, i])}")
+    return lines
+
+
 FIELDS = ("lin_vel", "rpy", "foot_force", "scheduled_stance", "done", "fall")
 
 
-def evaluate(env, controller: R.Controller, rng, n_envs: int, seconds: float, settle_s: float = 1.0) -> dict:
+def evaluate(
+    env,
+    controller: R.Controller,
+    rng,
+    n_envs: int,
+    seconds: float,
+    settle_s: float = 1.0,
+    footfall_s: tuple[float, float] | None = None,
+) -> dict:
     """One episode of `seconds` in each of n_envs environments (randomized models when the env
-    config randomizes), the gait's forward command -> gait_stats."""
+    config randomizes), the gait's forward command -> gait_stats, plus with footfall_s = (start,
+    end) [s] the footfall diagram of environment 0 over that window ("footfalls": footfall_lines;
+    empty if it fell before the window's end)."""
     if env.config.command_tracking:
         raise ValueError(
             "evaluate runs the gait's own forward command: use an env config without command_tracking"
@@ -120,4 +141,10 @@ def evaluate(env, controller: R.Controller, rng, n_envs: int, seconds: float, se
         parts.append({k: getattr(seg, k) for k in FIELDS})
     joined = {k: np.concatenate([p[k] for p in parts], axis=0) for k in FIELDS}
     traj = R.Trajectory(**{f: joined.get(f) for f in R.Trajectory._fields})
-    return gait_stats(traj, env.ctrl_dt, command_vx, float(params.duty), settle_s)
+    stats = gait_stats(traj, env.ctrl_dt, command_vx, float(params.duty), settle_s)
+    if footfall_s is not None:
+        lo, hi = (int(round(t / env.ctrl_dt)) for t in footfall_s)
+        fell = bool(np.any(first_episode_mask(traj.done)[:hi, 0] & traj.done[:hi, 0]))
+        contact = traj.foot_force[lo:hi, 0] > FORCE_THRESHOLD_N
+        stats["footfalls"] = [] if fell else footfall_lines(contact, traj.scheduled_stance[lo:hi, 0])
+    return stats

@@ -350,8 +350,37 @@ def test_forward_reward_targets_the_gait_speed(env, states):
         assert float(s.metrics["reward/forward_velocity_exp"]) == pytest.approx(expect, rel=1e-4, abs=1e-6)
 
 
+def test_footfall_lines_by_hand():
+    # 2 steps, FL down in both, FR lifts at the second step; the table: FL stance, FR swing then stance
+    contact = np.array([[1, 1, 0, 0], [1, 0, 0, 1]], bool)
+    stance = np.array([[1, 0, 0, 0], [1, 1, 0, 1]], bool)
+    lines = gait_eval.footfall_lines(contact, stance)
+    assert lines == [
+        "FL table ##",
+        "FL feet  ##",
+        "FR table .#",
+        "FR feet  #.",
+        "RL table ..",
+        "RL feet  ..",
+        "RR table .#",
+        "RR feet  .#",
+    ]
+
+
 def test_evaluate_one_tiny_case(env):
-    s = gait_eval.evaluate(env, R.gait_only(env), jax.random.PRNGKey(1), n_envs=2, seconds=1.2, settle_s=0.6)
+    s = gait_eval.evaluate(
+        env,
+        R.gait_only(env),
+        jax.random.PRNGKey(1),
+        n_envs=2,
+        seconds=1.2,
+        settle_s=0.6,
+        footfall_s=(0.6, 1.0),
+    )
+    # 0.4 s of 20 ms steps: 20 characters after the 9-character label, 8 lines; none if env 0 fell
+    assert s["footfalls"] == [] or (
+        len(s["footfalls"]) == 8 and all(len(x) == 9 + 20 for x in s["footfalls"])
+    )
     assert s["episodes"] == 2 and 0 <= s["falls"] <= 2
     assert s["command_vx"] == pytest.approx(BOUND_SPEED) and s["duty_table"] == pytest.approx(0.4)
     assert 0.0 <= s["pattern_match"] <= s["pattern_match_1step"] <= 1.0
@@ -396,6 +425,9 @@ def gaits_cli():
         (["--settle-s", "-1"], ["--settle-s >= 0"]),
         (["--runs", "{tmp}/missing"], ["missing", "not a directory"]),
         (["--json", "{tmp}/old.json"], ["old.json", "exists"]),
+        (["--controllers", "gait,mpc"], ["--controllers"]),
+        (["--footfalls", "2", "1"], ["--footfalls"]),
+        (["--seconds", "3", "--footfalls", "1", "4"], ["--footfalls"]),
     ],
 )
 def test_gaits_cli_usage_errors_exit_2(gaits_cli, capsys, tmp_path, args, words):
