@@ -20,10 +20,11 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from quadson_mjx import model as quadson_model
 from quadson_mjx import serial
 from quadson_mjx.mjcf import num, png_gray8, vec
 from quadson_mjx.robots.caramel import constants as C
+from quadson_mjx.robots.quadson import constants as quadson_constants
+from quadson_mjx.robots.quadson import model as quadson_model
 
 MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "caramel"
 SCENES = {"flat": "scene.xml", "rough": "scene_rough.xml"}
@@ -234,7 +235,7 @@ def scene_xml() -> str:
 def scene_rough_xml() -> str:
     """Text of models/caramel/scene_rough.xml: Quadson's seeded loose-stone height map (8 x 8 m, flat
     0.6 m patch at the origin) with Caramel's relief ROUGH_MAX_HEIGHT."""
-    hx, hy = quadson_model.C.ROUGH_SIZE
+    hx, hy = quadson_constants.ROUGH_SIZE
     asset = (
         f'    <hfield name="rough" file="{ROUGH_PNG}" '
         f'size="{num(hx)} {num(hy)} {num(C.ROUGH_MAX_HEIGHT)} 0.05"/>\n'
