@@ -18,7 +18,7 @@ import time
 import jax
 import numpy as np
 
-from quadson_mjx import constants as C
+from quadson_mjx.robots.quadson import constants as C
 
 L0, L1, L2, L3, L4, L5 = C.LINK_LENGTHS
 

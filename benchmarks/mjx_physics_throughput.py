@@ -29,8 +29,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from quadson_mjx import constants as C
-from quadson_mjx import model as qmodel
+from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import model as qmodel
 
 CTRL_DT = 0.02
 GAIT_HZ = 2.0

@@ -35,9 +35,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mujoco import mjx  # noqa: E402
 
-from quadson_mjx import model as qmodel  # noqa: E402
 from quadson_mjx.env import QuadsonEnv  # noqa: E402
 from quadson_mjx.env_config import env_config  # noqa: E402
+from quadson_mjx.robots.quadson import model as qmodel  # noqa: E402
 
 NOISE_RAD = 0.1
 ACTION_RANGE = 0.2

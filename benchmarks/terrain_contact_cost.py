@@ -21,7 +21,7 @@ from mujoco import mjx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from quadson_mjx import model as qmodel  # noqa: E402
+from quadson_mjx.robots.quadson import model as qmodel  # noqa: E402
 
 
 def physics_rate(mj_model, n_envs: int, n_steps: int, repeats: int) -> float:

@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from quadson_mjx import fivebar  # noqa: E402
 from quadson_mjx import gait as G  # noqa: E402
-from quadson_mjx import model as M  # noqa: E402
+from quadson_mjx.robots.quadson import model as M  # noqa: E402
 from quadson_mjx.swing import SWING_SHAPES  # noqa: E402
 
 FIVE = ("walk", "trot", "pace", "bound", "gallop")

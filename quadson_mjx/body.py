@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from quadson_mjx import constants as C
 from quadson_mjx import fivebar
+from quadson_mjx.robots.quadson import constants as C
 
 
 def body_rotation(rpy: jax.Array) -> jax.Array:

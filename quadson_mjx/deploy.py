@@ -7,7 +7,7 @@ foot offsets -> five-bar IK -> 12 motor targets, exactly as the environment comp
 
     python -m quadson_mjx.deploy policy.onnx --bench 2000   # time one step on this computer
 
-Imports numpy, quadson_mjx.constants / gait_np / export (numpy only) and, for an .onnx, onnxruntime:
+Imports numpy, quadson_mjx.robots.quadson.constants / gait_np / export (numpy only) and, for an .onnx, onnxruntime:
 no jax, mujoco or brax. The gait, its start ramp and the clamped IK are gait_np's numpy versions of
 the simulator's JAX code; the env config (gait, swing, control period, ramp, action scale,
 observation options) comes from the metadata the export wrote into the policy file.

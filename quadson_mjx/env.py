@@ -28,11 +28,11 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
-from quadson_mjx import constants as C
 from quadson_mjx import gait, rewards, terrain
-from quadson_mjx import model as qmodel
 from quadson_mjx.config import freeze
 from quadson_mjx.env_config import env_config, env_gait, with_added_keys
+from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import model as qmodel
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no Quadson state is this fast; treat it as a blown-up solve
 

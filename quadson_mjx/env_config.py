@@ -12,8 +12,8 @@ import math
 
 import ml_collections
 
-from quadson_mjx import constants
 from quadson_mjx.gait import GAIT_NAMES, GaitParams, gait_params
+from quadson_mjx.robots.quadson import constants
 
 SEED_EPISODE_S = 4500 / 240.0  # seed 000: 4500 PyBullet steps at 240 Hz = 18.75 s
 

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from quadson_mjx import constants as C
+from quadson_mjx.robots.quadson import constants as C
 
 
 class LegPoints(NamedTuple):

@@ -45,8 +45,8 @@ from foxglove import channels as fch
 from foxglove import messages as fm
 from foxglove.mcap import MCAPWriteOptions
 
-from quadson_mjx import constants as C
 from quadson_mjx.mcap_check import ROLLOUT_TOPICS  # noqa: F401 (one list for the writer and the checker)
+from quadson_mjx.robots.quadson import constants as C
 
 PROFILE = "quadson_mjx.rollout"
 FLOOR_HALF_EXTENT_M = 10.0  # an infinite MuJoCo plane is drawn this large
@@ -501,7 +501,7 @@ def record(
         raise ValueError(f"a rollout needs n_envs >= 1 and n_steps >= 1, got {n_envs} and {n_steps}")
     from quadson_mjx import rollout as qrollout
     from quadson_mjx.config import to_json
-    from quadson_mjx.model import model_xml_text
+    from quadson_mjx.robots.quadson.model import model_xml_text
     from quadson_mjx.training import versions
 
     ctrl_dt = env.ctrl_dt

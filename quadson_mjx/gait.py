@@ -47,8 +47,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from quadson_mjx import body, fivebar
-from quadson_mjx import constants as C
 from quadson_mjx import swing as S
+from quadson_mjx.robots.quadson import constants as C
 
 # Seed 003's discontinuous trot: constants.DISCONTINUOUS_TROT (the numpy gait of deploy shares it).
 SEED_003_P_T = C.SEED_003_P_T

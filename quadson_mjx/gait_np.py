@@ -1,7 +1,7 @@
 """Numpy versions of what the environment does between an action and the motor targets: the gait's
 foot targets (gait.py, swing.py), the env's start ramp (env.QuadsonEnv.gait_targets) and the
 five-bar IK with its clamp (fivebar.leg_ik, gait.motor_targets). For the robot's computer: numpy and
-quadson_mjx.constants only, no jax (tests/test_deploy.py checks them against the JAX code the
+quadson_mjx.robots.quadson.constants only, no jax (tests/test_deploy.py checks them against the JAX code the
 simulator runs).
 
 Same frames, units and shapes as the JAX modules: feet (..., 4, 3) in the shoulder frames [m], LEGS
@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from quadson_mjx import constants as C
+from quadson_mjx.robots.quadson import constants as C
 
 SWING_SHAPES: tuple[str, ...] = ("bezier_seed", "bezier_apex", "cycloid")  # = swing.SWING_SHAPES
 APEX_SCALE = math.sqrt(3.0)  # swing.APEX_SCALE

@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from quadson_mjx import constants as C
 from quadson_mjx import gait
-from quadson_mjx import model as qmodel
 from quadson_mjx.env import quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import model as qmodel
 from quadson_mjx.stabilizer import SEED_003_GAINS, PidGains, pid_init, pid_step
 
 CONTROLLERS = ("gait", "pid")  # named controllers; a policy comes from a run directory

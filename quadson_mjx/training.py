@@ -831,6 +831,6 @@ def _nest(record: dict) -> dict:
 
 
 def _model_xml(terrain: str) -> str:
-    from quadson_mjx import model as qmodel
+    from quadson_mjx.robots.quadson import model as qmodel
 
     return qmodel.model_xml_text(terrain)

@@ -19,7 +19,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from quadson_mjx import constants as C
+from quadson_mjx.robots.quadson import constants as C
 
 BACKENDS = ("egl", "osmesa")
 SUFFIXES = (".mp4", ".gif")

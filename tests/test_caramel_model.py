@@ -47,7 +47,7 @@ def test_committed_files_equal_generator_output():
 
 
 def test_names_and_leg_order(m):
-    # Quadson's leg order and naming scheme (quadson_mjx.constants): FL, FR, RL, RR.
+    # Quadson's leg order and naming scheme (quadson_mjx.robots.quadson.constants): FL, FR, RL, RR.
     assert C.LEGS == ("FL", "FR", "RL", "RR")
     assert C.JOINT_NAMES[:3] == ("FL_hip_roll_joint", "FL_hip_pitch_joint", "FL_knee_joint")
     assert C.ACTUATORS[-1] == "RR_knee" and C.FEET == ("FL_foot", "FR_foot", "RL_foot", "RR_foot")

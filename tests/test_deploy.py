@@ -16,11 +16,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from quadson_mjx import constants as C
 from quadson_mjx import deploy, fivebar, gait, gait_np, swing
 from quadson_mjx.config import to_json
 from quadson_mjx.env import QuadsonEnv
 from quadson_mjx.env_config import env_config
+from quadson_mjx.robots.quadson import constants as C
 
 ROOT = Path(__file__).resolve().parents[1]
 # jitted references: one compile each instead of one per eager op (GaitParams leaves are traced)
@@ -252,7 +252,7 @@ def test_replayed_sensors_give_the_motor_targets_the_simulator_applied(replay):
     """Each env's /imu (orientation, gyro), /odom (linear velocity: the estimator's input),
     /joint_states (motor angles) and command, replayed through DeployLoop, give the logged
     observation, action and applied motor targets; validity as the JAX IK says."""
-    from quadson_mjx import model as qmodel
+    from quadson_mjx.robots.quadson import model as qmodel
 
     env = replay["env"]
     home = qmodel.home_qpos(env.mj_model)  # the state the first step observes (env.reset)

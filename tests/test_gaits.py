@@ -17,7 +17,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from quadson_mjx import constants as C
 from quadson_mjx import deploy, gait, gait_eval, gait_np
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
@@ -29,6 +28,7 @@ from quadson_mjx.env_config import (
     env_gait,
     with_added_keys,
 )
+from quadson_mjx.robots.quadson import constants as C
 
 ROOT = Path(__file__).resolve().parents[1]
 GAIT_FIELDS = ("cycle_s", "duty", "step_height_m", "step_length_m", "swing", "p_t", "p_n", "discontinuous")

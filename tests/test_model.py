@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from quadson_mjx import constants as C
 from quadson_mjx import fivebar
-from quadson_mjx import model as qmodel
+from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import model as qmodel
 
 CTRL_DT = 0.02
 
@@ -54,7 +54,9 @@ def _foot_in_shoulder(d, ids, leg: int) -> np.ndarray:
 
 def test_committed_files_equal_generator_output():
     for name, content in qmodel.model_files().items():
-        assert (qmodel.MODEL_DIR / name).read_bytes() == content, f"{name}: run python -m quadson_mjx.model"
+        assert (qmodel.MODEL_DIR / name).read_bytes() == content, (
+            f"{name}: run python -m quadson_mjx.robots.quadson.model"
+        )
 
 
 def test_every_constant_name_exists_and_layout(m, ids):

@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from quadson_mjx import model as qmodel
 from quadson_mjx import terrain
+from quadson_mjx.robots.quadson import model as qmodel
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from quadson_mjx import model as qmodel
 from quadson_mjx import video
+from quadson_mjx.robots.quadson import model as qmodel
 
 W, H = 96, 72  # small frames: software rendering on 2 cores
 

@@ -27,7 +27,7 @@ STANCE_HEIGHT = 0.170  # hip to foot centre, standing (robots.md; the IK vectors
 LEG = serial.CARAMEL  # L1 = 0.048 (hip offset), L2 = L3 = 0.120 (femur, tibia) (robots.md, seed 003)
 FOOT_RADIUS = 0.010  # rubber foot sphere (assumed); the foot point of the kinematics is its centre
 
-# --- names and leg order: the same as Quadson's (quadson_mjx.constants.LEGS) ----------------------
+# --- names and leg order: the same as Quadson's (quadson_mjx.robots.quadson.constants.LEGS) ----------------------
 LEGS: tuple[str, ...] = ("FL", "FR", "RL", "RR")
 NUM_LEGS = 4
 IS_FRONT = np.array([True, True, False, False])
@@ -136,7 +136,7 @@ INTEGRATOR = "Euler"
 
 # --- rough ground: Quadson's seeded loose-stone height map, at Caramel's scale ---------------------
 # Seed 003's uneven terrain is "small loose stones" (Fig. 8b, no size given). The height map is
-# quadson_mjx.model.rough_heights() (8 x 8 m, stones 3-8 cm across, a flat 0.6 x 0.6 m patch at the
+# quadson_mjx.robots.quadson.model.rough_heights() (8 x 8 m, stones 3-8 cm across, a flat 0.6 x 0.6 m patch at the
 # origin); Caramel's scene scales its relief to 2 cm (assumed: less than half the 5 cm step height).
 ROUGH_MAX_HEIGHT = 0.02  # [m]
 

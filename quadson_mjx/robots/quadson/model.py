@@ -1,6 +1,6 @@
 """The Quadson MuJoCo model: MJCF generator, loader, cached ids, home pose and closure residual.
 
-`python -m quadson_mjx.model` (or `write_model_files()`) regenerates models/quadson/*.xml and the
+`python -m quadson_mjx.robots.quadson.model` (or `write_model_files()`) regenerates models/quadson/*.xml and the
 rough-ground height map from `constants`; the committed files are tested to equal this output.
 
 Each leg is a tree cut open at p3: hip (motor 0 about the leg-frame x axis) -> link 1 (motor 1 at
@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import functools
 import math
-import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,23 +23,14 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from quadson_mjx import constants as C
 from quadson_mjx import fivebar
+from quadson_mjx.mjcf import num, png_gray8, vec
+from quadson_mjx.robots.quadson import constants as C
 
-MODEL_DIR = Path(__file__).resolve().parent.parent / "models" / "quadson"
+MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "quadson"
 SCENES = {"flat": "scene.xml", "rough": "scene_rough.xml"}
 ROUGH_PNG = "rough.png"
 _BODY_XML = "quadson.xml"
-
-
-def _f(x: float) -> str:
-    """Deterministic short float formatting for the MJCF."""
-    s = f"{float(x):.9g}"
-    return "0" if s == "-0" else s
-
-
-def _v(xs) -> str:
-    return " ".join(_f(x) for x in np.ravel(xs))
 
 
 # --- home pose ------------------------------------------------------------------------------------
@@ -106,13 +95,13 @@ def _rod_inertia(mass: float, length: float) -> str:
     r = C.LINK_RADIUS
     ixx = 0.5 * mass * r * r
     iyy = mass * (3 * r * r + length * length) / 12.0
-    return f'<inertial pos="{_f(length / 2)} 0 0" mass="{_f(mass)}" diaginertia="{_v([ixx, iyy, iyy])}"/>'
+    return f'<inertial pos="{num(length / 2)} 0 0" mass="{num(mass)}" diaginertia="{vec([ixx, iyy, iyy])}"/>'
 
 
 def _box_inertia(mass: float, half, pos=(0.0, 0.0, 0.0)) -> str:
     a, b, c = (2 * h for h in half)
     diag = [mass * (b * b + c * c) / 12, mass * (a * a + c * c) / 12, mass * (a * a + b * b) / 12]
-    return f'<inertial pos="{_v(pos)}" mass="{_f(mass)}" diaginertia="{_v(diag)}"/>'
+    return f'<inertial pos="{vec(pos)}" mass="{num(mass)}" diaginertia="{vec(diag)}"/>'
 
 
 def _quat_of(rot: np.ndarray) -> np.ndarray:
@@ -126,32 +115,32 @@ def _leg_xml(i: int, leg: str) -> str:
     j = functools.partial(C.joint_name, leg)
     hip_c = (C.L0 / 2, 0.0, 0.0)
     return f"""\
-      <body name="{leg}_hip" pos="{_v(C.SHOULDER_POS[i])}" quat="{_v(_quat_of(C.SHOULDER_ROT[i]))}">
+      <body name="{leg}_hip" pos="{vec(C.SHOULDER_POS[i])}" quat="{vec(_quat_of(C.SHOULDER_ROT[i]))}">
         {_box_inertia(m.HIP_MASS, C.HIP_HALF_SIZE, hip_c)}
         <joint name="{j("motor0")}" class="motor0"/>
-        <geom class="visual" type="box" pos="{_v(hip_c)}" size="{_v(C.HIP_HALF_SIZE)}"/>
+        <geom class="visual" type="box" pos="{vec(hip_c)}" size="{vec(C.HIP_HALF_SIZE)}"/>
         <body name="{leg}_link1">
           {_rod_inertia(L["link1"], C.L1)}
           <joint name="{j("motor1")}" class="motor1"/>
-          <geom class="visual" fromto="0 0 0 {_f(C.L1)} 0 0"/>
-          <body name="{leg}_link2" pos="{_f(C.L1)} 0 0">
+          <geom class="visual" fromto="0 0 0 {num(C.L1)} 0 0"/>
+          <body name="{leg}_link2" pos="{num(C.L1)} 0 0">
             {_rod_inertia(L["link2"], C.L2 + C.L3)}
             <joint name="{j("knee2")}" class="knee"/>
-            <geom class="visual" fromto="0 0 0 {_f(C.L2 + C.L3)} 0 0"/>
-            <geom name="{leg}_foot_collision" class="foot" pos="{_f(C.L2 + C.L3)} 0 0"/>
-            <site name="{leg}_closure2" pos="{_f(C.L2)} 0 0" size="0.004"/>
-            <site name="{C.foot_name(leg)}" class="foot_site" pos="{_f(C.L2 + C.L3)} 0 0"/>
+            <geom class="visual" fromto="0 0 0 {num(C.L2 + C.L3)} 0 0"/>
+            <geom name="{leg}_foot_collision" class="foot" pos="{num(C.L2 + C.L3)} 0 0"/>
+            <site name="{leg}_closure2" pos="{num(C.L2)} 0 0" size="0.004"/>
+            <site name="{C.foot_name(leg)}" class="foot_site" pos="{num(C.L2 + C.L3)} 0 0"/>
           </body>
         </body>
-        <body name="{leg}_link5" pos="{_f(C.L0)} 0 0">
+        <body name="{leg}_link5" pos="{num(C.L0)} 0 0">
           {_rod_inertia(L["link5"], C.L5)}
           <joint name="{j("motor5")}" class="motor5"/>
-          <geom class="visual" fromto="0 0 0 {_f(C.L5)} 0 0"/>
-          <body name="{leg}_link4" pos="{_f(C.L5)} 0 0">
+          <geom class="visual" fromto="0 0 0 {num(C.L5)} 0 0"/>
+          <body name="{leg}_link4" pos="{num(C.L5)} 0 0">
             {_rod_inertia(L["link4"], C.L4)}
             <joint name="{j("knee4")}" class="knee"/>
-            <geom class="visual" fromto="0 0 0 {_f(C.L4)} 0 0"/>
-            <site name="{leg}_closure4" pos="{_f(C.L4)} 0 0" size="0.004"/>
+            <geom class="visual" fromto="0 0 0 {num(C.L4)} 0 0"/>
+            <site name="{leg}_closure4" pos="{num(C.L4)} 0 0" size="0.004"/>
           </body>
         </body>
       </body>
@@ -159,7 +148,7 @@ def _leg_xml(i: int, leg: str) -> str:
 
 
 def _motor_class(part: str, axis: str, rng) -> str:
-    lo, hi = _f(rng[0]), _f(rng[1])
+    lo, hi = num(rng[0]), num(rng[1])
     return f"""\
       <default class="{part}">
         <joint axis="{axis}" range="{lo} {hi}"/>
@@ -172,7 +161,7 @@ def robot_xml() -> str:
     """Text of models/quadson/quadson.xml."""
     ranges = dict(zip(C.MOTORS, C.MOTOR_RANGES, strict=True))
     legs = "".join(_leg_xml(i, leg) for i, leg in enumerate(C.LEGS))
-    eff = _f(C.MOTOR_EFFORT_LIMIT)
+    eff = num(C.MOTOR_EFFORT_LIMIT)
     closure = "".join(
         f'    <connect name="{leg}_closure" site1="{leg}_closure2" site2="{leg}_closure4"/>\n'
         for leg in C.LEGS
@@ -196,47 +185,47 @@ def robot_xml() -> str:
         f'    <touch name="{C.foot_name(leg)}_touch" site="{C.foot_name(leg)}"/>\n' for leg in C.LEGS
     )
     key_qpos = np.concatenate([[0.0, 0.0, HOME_BASE_HEIGHT, 1.0, 0.0, 0.0, 0.0], _home_leg_qpos().ravel()])
-    solref = _v([C.CONTACT_TIMECONST, C.CONTACT_DAMPING_RATIO])
+    solref = vec([C.CONTACT_TIMECONST, C.CONTACT_DAMPING_RATIO])
     return f"""\
-<!-- Generated by `python -m quadson_mjx.model` from quadson_mjx/constants.py: edit those, not this. -->
+<!-- Generated by `python -m quadson_mjx.robots.quadson.model` from quadson_mjx/robots/quadson/constants.py: edit those, not this. -->
 <mujoco model="quadson">
   <compiler angle="radian" autolimits="true"/>
 
-  <option timestep="{_f(C.SIM_DT)}" iterations="{C.SOLVER_ITERATIONS}" ls_iterations="{C.SOLVER_LS_ITERATIONS}" integrator="{C.INTEGRATOR}">
+  <option timestep="{num(C.SIM_DT)}" iterations="{C.SOLVER_ITERATIONS}" ls_iterations="{C.SOLVER_LS_ITERATIONS}" integrator="{C.INTEGRATOR}">
     <flag eulerdamp="disable"/>
   </option>
 
   <default>
-    <equality solref="{_v(C.CLOSURE_SOLREF)}" solimp="{_v(C.CLOSURE_SOLIMP)}"/>
+    <equality solref="{vec(C.CLOSURE_SOLREF)}" solimp="{vec(C.CLOSURE_SOLIMP)}"/>
     <default class="quadson">
       <geom contype="0" conaffinity="0"/>
-      <joint damping="{_f(C.MOTOR_DAMPING)}" armature="{_f(C.MOTOR_ARMATURE)}"/>
-      <position kp="{_f(C.MOTOR_KP)}" kv="{_f(C.MOTOR_KD)}" forcerange="-{eff} {eff}"/>
+      <joint damping="{num(C.MOTOR_DAMPING)}" armature="{num(C.MOTOR_ARMATURE)}"/>
+      <position kp="{num(C.MOTOR_KP)}" kv="{num(C.MOTOR_KD)}" forcerange="-{eff} {eff}"/>
 {_motor_class("motor0", "1 0 0", ranges["motor0"])}{_motor_class("motor1", "0 0 -1", ranges["motor1"])}{_motor_class("motor5", "0 0 -1", ranges["motor5"])}\
       <default class="knee">
-        <joint axis="0 0 -1" limited="false" damping="{_f(C.PASSIVE_DAMPING)}" armature="{_f(C.PASSIVE_ARMATURE)}"/>
+        <joint axis="0 0 -1" limited="false" damping="{num(C.PASSIVE_DAMPING)}" armature="{num(C.PASSIVE_ARMATURE)}"/>
       </default>
       <default class="visual">
-        <geom type="capsule" size="{_f(C.LINK_RADIUS)}" group="2" density="0" rgba="0.85 0.55 0.2 1"/>
+        <geom type="capsule" size="{num(C.LINK_RADIUS)}" group="2" density="0" rgba="0.85 0.55 0.2 1"/>
       </default>
       <default class="collision">
-        <geom group="3" conaffinity="1" condim="{C.CONTACT_CONDIM}" friction="{_v(C.GROUND_FRICTION)}" solref="{solref}"/>
+        <geom group="3" conaffinity="1" condim="{C.CONTACT_CONDIM}" friction="{vec(C.GROUND_FRICTION)}" solref="{solref}"/>
         <default class="foot">
-          <geom type="sphere" size="{_f(C.FOOT_RADIUS)}" priority="1" rgba="0.1 0.1 0.1 1"/>
+          <geom type="sphere" size="{num(C.FOOT_RADIUS)}" priority="1" rgba="0.1 0.1 0.1 1"/>
         </default>
       </default>
       <default class="foot_site">
-        <site type="sphere" size="{_f(C.FOOT_RADIUS + 0.002)}" group="4"/>
+        <site type="sphere" size="{num(C.FOOT_RADIUS + 0.002)}" group="4"/>
       </default>
     </default>
   </default>
 
   <worldbody>
-    <body name="{C.ROOT_BODY}" pos="0 0 {_f(HOME_BASE_HEIGHT)}" childclass="quadson">
+    <body name="{C.ROOT_BODY}" pos="0 0 {num(HOME_BASE_HEIGHT)}" childclass="quadson">
       <freejoint name="root"/>
       {_box_inertia(C.BASE_MASS, C.BASE_HALF_SIZE, (C.BASE_COM_X, 0.0, 0.0))}
-      <geom name="base_collision" class="collision" type="box" size="{_v(C.BASE_HALF_SIZE)}"/>
-      <geom class="visual" type="box" size="{_v(C.BASE_HALF_SIZE)}" rgba="0.3 0.3 0.35 1"/>
+      <geom name="base_collision" class="collision" type="box" size="{vec(C.BASE_HALF_SIZE)}"/>
+      <geom class="visual" type="box" size="{vec(C.BASE_HALF_SIZE)}" rgba="0.3 0.3 0.35 1"/>
       <site name="{C.IMU_SITE}" size="0.01"/>
 {legs}    </body>
   </worldbody>
@@ -255,16 +244,16 @@ def robot_xml() -> str:
 {sensors}  </sensor>
 
   <keyframe>
-    <key name="{C.HOME_KEYFRAME}" qpos="{_v(key_qpos)}" ctrl="{_v(home_motor_angles().ravel())}"/>
+    <key name="{C.HOME_KEYFRAME}" qpos="{vec(key_qpos)}" ctrl="{vec(home_motor_angles().ravel())}"/>
   </keyframe>
 </mujoco>
 """
 
 
 def _scene_common(floor: str, assets: str = "") -> str:
-    solref = _v([C.CONTACT_TIMECONST, C.CONTACT_DAMPING_RATIO])
+    solref = vec([C.CONTACT_TIMECONST, C.CONTACT_DAMPING_RATIO])
     return f"""\
-<!-- Generated by `python -m quadson_mjx.model` from quadson_mjx/constants.py: edit those, not this. -->
+<!-- Generated by `python -m quadson_mjx.robots.quadson.model` from quadson_mjx/robots/quadson/constants.py: edit those, not this. -->
 <mujoco model="quadson scene">
   <include file="{_BODY_XML}"/>
 
@@ -284,7 +273,7 @@ def _scene_common(floor: str, assets: str = "") -> str:
 
   <worldbody>
     <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
-    {floor.format(friction=_v(C.GROUND_FRICTION), solref=solref, condim=C.CONTACT_CONDIM)}
+    {floor.format(friction=vec(C.GROUND_FRICTION), solref=solref, condim=C.CONTACT_CONDIM)}
   </worldbody>
 </mujoco>
 """
@@ -305,7 +294,7 @@ def scene_rough_xml() -> str:
     nrow, ncol = _rough_shape()
     asset = (
         f'    <hfield name="rough" file="{ROUGH_PNG}" '
-        f'size="{_f(hx)} {_f(hy)} {_f(C.ROUGH_MAX_HEIGHT)} 0.05"/>\n'
+        f'size="{num(hx)} {num(hy)} {num(C.ROUGH_MAX_HEIGHT)} 0.05"/>\n'
     )
     del nrow, ncol
     floor = (
@@ -348,32 +337,13 @@ def rough_heights() -> np.ndarray:
     return np.round(h * 255).astype(np.uint8)
 
 
-def _png_gray8(img: np.ndarray) -> bytes:
-    """Minimal deterministic 8-bit grayscale PNG encoder (no timestamps, fixed zlib level)."""
-
-    def chunk(tag: bytes, data: bytes) -> bytes:
-        return (
-            struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
-        )
-
-    h, w = img.shape
-    raw = b"".join(b"\x00" + img[r].tobytes() for r in range(h))
-    ihdr = struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0)
-    return (
-        b"\x89PNG\r\n\x1a\n"
-        + chunk(b"IHDR", ihdr)
-        + chunk(b"IDAT", zlib.compress(raw, 9))
-        + chunk(b"IEND", b"")
-    )
-
-
 def model_files() -> dict[str, bytes]:
     """Every generated file of models/quadson/, name -> content."""
     return {
         _BODY_XML: robot_xml().encode(),
         SCENES["flat"]: scene_xml().encode(),
         SCENES["rough"]: scene_rough_xml().encode(),
-        ROUGH_PNG: _png_gray8(rough_heights()),
+        ROUGH_PNG: png_gray8(rough_heights()),
     }
 
 
