@@ -26,9 +26,9 @@ import math
 
 import numpy as np
 
-from quadson_mjx import constants as C
 from quadson_mjx import gait
 from quadson_mjx import rollout as R
+from quadson_mjx.robots.quadson import constants as C
 
 FORCE_THRESHOLD_N = 1.0  # a foot carrying less than ~3 % of its share of the ~3 kg robot is "up"
 
