@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from quadson_mjx import serial
+from quadson_mjx import mjcf, serial
 from quadson_mjx.mjcf import num, png_gray8, vec
 from quadson_mjx.robots.caramel import constants as C
 from quadson_mjx.robots.quadson import constants as quadson_constants
@@ -194,57 +194,21 @@ def robot_xml(floating: bool = True) -> str:
 """
 
 
-def _scene_common(floor: str, assets: str = "") -> str:
-    solref = vec([C.CONTACT_TIMECONST, C.CONTACT_DAMPING_RATIO])
-    return f"""\
-{_HEADER}
-<mujoco model="caramel scene">
-  <include file="{_BODY_XML}"/>
-
-  <statistic center="0 0 0.12" extent="0.5"/>
-
-  <visual>
-    <headlight diffuse="0.6 0.6 0.6" ambient="0.3 0.3 0.3" specular="0 0 0"/>
-    <global azimuth="-130" elevation="-20"/>
-  </visual>
-
-  <asset>
-    <texture type="skybox" builtin="gradient" rgb1="0.3 0.5 0.7" rgb2="0 0 0" width="512" height="3072"/>
-    <texture type="2d" name="groundplane" builtin="checker" mark="edge" rgb1="0.2 0.3 0.4" rgb2="0.1 0.2 0.3"
-      markrgb="0.8 0.8 0.8" width="300" height="300"/>
-    <material name="groundplane" texture="groundplane" texuniform="true" texrepeat="5 5" reflectance="0.2"/>
-{assets}  </asset>
-
-  <worldbody>
-    <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
-    {floor.format(friction=vec(C.GROUND_FRICTION), solref=solref, condim=C.CONTACT_CONDIM)}
-  </worldbody>
-</mujoco>
-"""
+_FLOOR_CONTACT = (C.GROUND_FRICTION, (C.CONTACT_TIMECONST, C.CONTACT_DAMPING_RATIO), C.CONTACT_CONDIM)
 
 
 def scene_xml() -> str:
     """Text of models/caramel/scene.xml: the robot on a flat floor."""
-    floor = (
-        '<geom name="floor" size="0 0 0.05" type="plane" material="groundplane" condim="{condim}" '
-        'friction="{friction}" solref="{solref}"/>'
-    )
-    return _scene_common(floor)
+    return mjcf.scene(_HEADER, "caramel scene", _BODY_XML, "0 0 0.12", "0.5", _FLOOR_CONTACT)
 
 
 def scene_rough_xml() -> str:
     """Text of models/caramel/scene_rough.xml: Quadson's seeded loose-stone height map (8 x 8 m, flat
     0.6 m patch at the origin) with Caramel's relief ROUGH_MAX_HEIGHT."""
-    hx, hy = quadson_constants.ROUGH_SIZE
-    asset = (
-        f'    <hfield name="rough" file="{ROUGH_PNG}" '
-        f'size="{num(hx)} {num(hy)} {num(C.ROUGH_MAX_HEIGHT)} 0.05"/>\n'
+    size = (*quadson_constants.ROUGH_SIZE, C.ROUGH_MAX_HEIGHT, 0.05)
+    return mjcf.scene(
+        _HEADER, "caramel scene", _BODY_XML, "0 0 0.12", "0.5", _FLOOR_CONTACT, (ROUGH_PNG, size)
     )
-    floor = (
-        '<geom name="floor" type="hfield" hfield="rough" material="groundplane" condim="{condim}" '
-        'friction="{friction}" solref="{solref}"/>'
-    )
-    return _scene_common(floor, asset)
 
 
 def model_files() -> dict[str, bytes]:
