@@ -476,3 +476,28 @@ def test_ppo_gait_trains_the_recipe(ppo_cli, monkeypatch, tmp_path):
     assert cfg.reward.weights.contact_phase == GAIT_RECIPES["bound"]["contact_phase"]
     assert cfg.base_terrain_contact is False and cfg.joint_limits is False  # the training physics
     assert float(gait.seed_speed(env_gait(cfg))) == pytest.approx(BOUND_SPEED)
+
+
+@pytest.mark.parametrize(
+    "extra, named",
+    [
+        (["--gait", "bound"], "--gait"),
+        (["--terrain", "rough"], "--terrain"),
+        (["--env-preset", "robust"], "--env-preset"),
+        (["--gait-action"], "--gait-action"),
+        (["--env.gait=pace"], "--env.gait=pace"),
+    ],
+)
+def test_ppo_resume_refuses_config_options_regression(ppo_cli, monkeypatch, capsys, tmp_path, extra, named):
+    # Regression: `--resume RUN --gait G` ignored --gait silently (the run's saved configs rule)
+    def no_train(*args, **kwargs):
+        raise AssertionError("nothing may train")
+
+    monkeypatch.setattr(ppo_cli.training, "train", no_train)
+    sigterm = signal.getsignal(signal.SIGTERM)
+    try:
+        rc = ppo_cli.main(["--resume", str(tmp_path / "run"), "--no-compile-cache", *extra])
+    finally:
+        signal.signal(signal.SIGTERM, sigterm)
+    err = capsys.readouterr().err
+    assert rc == 2 and named in err and "--resume" in err

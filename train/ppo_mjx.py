@@ -100,8 +100,22 @@ def main(argv=None) -> int:
     if args.coordinator:  # one process per host; brax trains on every process's local devices
         jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
     if args.resume:
-        if overrides:
-            print("--resume takes the run's saved configs; overrides are not allowed", file=sys.stderr)
+        # what would change the configs: the saved ones rule, so each is refused rather than ignored
+        options = [
+            name
+            for name, given in (
+                ("--gait", args.gait is not None),
+                ("--gait-action", args.gait_action),
+                ("--env-preset", args.env_preset != "seed"),
+                ("--terrain", args.terrain != "flat"),
+                ("--preset", args.preset is not None),
+                ("--run-dir", args.run_dir is not None),
+            )
+            if given
+        ]
+        if overrides or options:
+            given = " ".join([*options, *overrides])
+            print(f"--resume takes the run's saved configs; remove {given}", file=sys.stderr)
             return 2
         run_dir = Path(args.resume)
         try:
