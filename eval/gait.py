@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -33,22 +32,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from quadson_mjx import fivebar  # noqa: E402
 from quadson_mjx import gait as G  # noqa: E402
+from quadson_mjx.deploy import quat_to_rpy  # noqa: E402
 from quadson_mjx.robots.quadson import model as M  # noqa: E402
 from quadson_mjx.swing import SWING_SHAPES  # noqa: E402
 
 FIVE = ("walk", "trot", "pace", "bound", "gallop")
 MIN_HEIGHT_M = 0.1
 MAX_TILT_DEG = 45.0
-
-
-def _rpy(quat) -> np.ndarray:
-    """(w, x, y, z) -> roll, pitch, yaw [rad] of R = Rz Ry Rx."""
-    r = np.zeros(9)
-    mujoco.mju_quat2Mat(r, np.asarray(quat, np.float64))
-    r = r.reshape(3, 3)
-    return np.array(
-        [math.atan2(r[2, 1], r[2, 2]), -math.asin(np.clip(r[2, 0], -1, 1)), math.atan2(r[1, 0], r[0, 0])]
-    )
 
 
 def planned_motor_targets(params, command, times, home_feet, ramp_s):
@@ -86,12 +76,12 @@ def run_trial(
 
     root = ids.root_qposadr
     pos, rpy = np.zeros((n + 1, 3)), np.zeros((n + 1, 3))
-    pos[0], rpy[0] = data.qpos[root : root + 3], _rpy(data.qpos[root + 3 : root + 7])
+    pos[0], rpy[0] = data.qpos[root : root + 3], quat_to_rpy(data.qpos[root + 3 : root + 7])
     warnings_before = int(np.sum(data.warning.number))
     for k in range(n):
         data.ctrl[ids.motor_actuator] = angles[k].reshape(12)
         mujoco.mj_step(model, data, nstep=n_sub)
-        pos[k + 1], rpy[k + 1] = data.qpos[root : root + 3], _rpy(data.qpos[root + 3 : root + 7])
+        pos[k + 1], rpy[k + 1] = data.qpos[root : root + 3], quat_to_rpy(data.qpos[root + 3 : root + 7])
 
     tilt_deg = np.degrees(np.abs(rpy[:, :2]))
     ok = (pos[:, 2] > MIN_HEIGHT_M) & np.all(tilt_deg < MAX_TILT_DEG, axis=1)

@@ -9,6 +9,20 @@ import zlib
 import numpy as np
 
 
+def joint_name(leg: str, part: str) -> str:
+    """The project's MJCF names (every robot): joints `{LEG}_{part}_joint`, actuators `{LEG}_{part}`,
+    feet `{LEG}_foot`."""
+    return f"{leg}_{part}_joint"
+
+
+def actuator_name(leg: str, part: str) -> str:
+    return f"{leg}_{part}"
+
+
+def foot_name(leg: str) -> str:
+    return f"{leg}_foot"
+
+
 def num(x: float) -> str:
     """Deterministic short float formatting for the MJCF (9 significant digits, no "-0")."""
     s = f"{float(x):.9g}"

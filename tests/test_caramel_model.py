@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from quadson_mjx import serial
+from quadson_mjx.deploy import quat_to_rpy
 from quadson_mjx.robots.caramel import constants as C
-from quadson_mjx.robots.caramel import experiments as E
 from quadson_mjx.robots.caramel import model as M
 
 
@@ -160,6 +160,6 @@ def test_home_keyframe_stands(m):
     hip_height = d.qpos[2] - C.FOOT_RADIUS  # hips lie in the base's z = 0 plane; feet centres r above 0
     # the MX-28 P loop sags under 0.55 kg per leg: about 9 mm at these gains
     assert abs(hip_height - C.STANCE_HEIGHT) < 0.01
-    roll, pitch, _ = E.rpy(d.qpos[3:7])
+    roll, pitch, _ = quat_to_rpy(d.qpos[3:7])
     assert abs(math.degrees(roll)) < 2.0 and abs(math.degrees(pitch)) < 2.0
     assert _warnings(d) == 0

@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from quadson_mjx import serial
+from quadson_mjx.mjcf import actuator_name, foot_name, joint_name
 
 # --- geometry [m] ---------------------------------------------------------------------------------
 HIP_SPACING_X = 0.2291  # L, front to rear hip (robots.md)
@@ -45,18 +46,6 @@ HIP_POS = np.stack(
 )
 # Diagonal pairs of the trot (seed 003 Fig. 2 / robots.md: FR + RL swing, then FL + RR).
 TROT_PAIRS: tuple[tuple[str, str], ...] = (("FR", "RL"), ("FL", "RR"))
-
-
-def joint_name(leg: str, part: str) -> str:
-    return f"{leg}_{part}_joint"
-
-
-def actuator_name(leg: str, part: str) -> str:
-    return f"{leg}_{part}"
-
-
-def foot_name(leg: str) -> str:
-    return f"{leg}_foot"
 
 
 JOINT_NAMES: tuple[str, ...] = tuple(joint_name(leg, p) for leg in LEGS for p in JOINTS)

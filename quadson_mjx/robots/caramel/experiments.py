@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 
 from quadson_mjx import stabilizer, swing
+from quadson_mjx.deploy import quat_to_rpy
 from quadson_mjx.robots.caramel import constants as C
 from quadson_mjx.robots.caramel import gait as G
 from quadson_mjx.robots.caramel import model as M
@@ -86,16 +87,6 @@ def perturbed_model(model: mujoco.MjModel, rng: np.random.Generator) -> mujoco.M
     out.actuator_gainprm[act, 0] = kp
     out.actuator_biasprm[act, 1] = -kp
     return out
-
-
-def rpy(quat) -> np.ndarray:
-    """(w, x, y, z) -> roll, pitch, yaw [rad] of R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    r = np.zeros(9)
-    mujoco.mju_quat2Mat(r, np.asarray(quat, np.float64))
-    r = r.reshape(3, 3)
-    return np.array(
-        [math.atan2(r[2, 1], r[2, 2]), -math.asin(np.clip(r[2, 0], -1, 1)), math.atan2(r[1, 0], r[0, 0])]
-    )
 
 
 # --- Table I ----------------------------------------------------------------------------------------
@@ -272,14 +263,14 @@ def walk_sample(
     pid_state = stabilizer.pid_init()
     pid_step = _jitted_pid_step()
     start_pos = data.qpos[:2].copy()
-    yaw0 = rpy(data.qpos[3:7])[2]
+    yaw0 = quat_to_rpy(data.qpos[3:7])[2]
     heading = np.array([math.cos(yaw0), math.sin(yaw0)])
     turning = command[0] == 0.0 and command[1] == 0.0
     rolls, pitches = [], []
     yaw_prev, yaw_turned, travel = yaw0, 0.0, 0.0
     invalid, fell, k = 0, False, 0
     for k in range(n_ticks):
-        r, p, y = rpy(data.qpos[3:7])
+        r, p, y = quat_to_rpy(data.qpos[3:7])
         rolls.append(r)
         pitches.append(p)
         yaw_turned += (y - yaw_prev + math.pi) % (2 * math.pi) - math.pi

@@ -22,6 +22,8 @@ import math
 
 import numpy as np
 
+from quadson_mjx.mjcf import actuator_name, foot_name, joint_name
+
 CM = 0.01  # the seeds' unit, converted once here
 
 # --- leg order: one order for the whole project (the seed's observation order LF, RF, LH, RH) ---
@@ -114,18 +116,6 @@ DISCONTINUOUS_TROT = {
 # --- MJCF names: {LEG}_{part}_joint, actuators {LEG}_{part}, feet {LEG}_foot ---
 MOTORS: tuple[str, ...] = ("motor0", "motor1", "motor5")  # t0 (abduction), t1 (at p1), t5 (at p5)
 PASSIVE: tuple[str, ...] = ("knee2", "knee4")  # passive hinges at p2 and p4
-
-
-def joint_name(leg: str, part: str) -> str:
-    return f"{leg}_{part}_joint"
-
-
-def actuator_name(leg: str, part: str) -> str:
-    return f"{leg}_{part}"
-
-
-def foot_name(leg: str) -> str:
-    return f"{leg}_foot"
 
 
 MOTOR_JOINTS: tuple[str, ...] = tuple(joint_name(leg, m) for leg in LEGS for m in MOTORS)
