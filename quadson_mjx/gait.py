@@ -82,6 +82,13 @@ def gait_params(name: str, **overrides) -> GaitParams:
         base = dict(C.GAITS[name])
     else:
         raise ValueError(f"unknown gait {name!r}; choose from {GAIT_NAMES}")
+    return params_from(base, **overrides)
+
+
+def params_from(base: dict, **overrides) -> GaitParams:
+    """A GaitParams from a gait table entry `base` (GaitParams fields; swing may be a name) with
+    field overrides. Raises ValueError on an unknown field or inconsistent values."""
+    base = dict(base)
     unknown = set(overrides) - set(GaitParams._fields)
     if unknown:
         raise ValueError(f"unknown gait field(s) {sorted(unknown)}; fields are {GaitParams._fields}")

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from quadson_mjx import gait as base_gait
 from quadson_mjx import serial, swing
 from quadson_mjx.robots.caramel import constants as C
 
@@ -126,3 +127,98 @@ def joint_targets(feet: jax.Array) -> tuple[jax.Array, jax.Array]:
 def stabilized_joint_targets(feet: jax.Array, roll_pitch: jax.Array) -> tuple[jax.Array, jax.Array]:
     """feet (4, 3) [m], stabilizer's body roll/pitch command (2,) [rad] -> angles (4, 3), valid (4,)."""
     return joint_targets(tilt_feet(feet, roll_pitch))
+
+
+# --- the same trot for the environment: JAX, a function of time ----------------------------------------
+# The environment asks for the feet of gait time t (a multiple of the 20 ms tick) with no planner state.
+# In steady state the cycle of `trot_feet` repeats: pair A lifts off from R(-theta)(p - t) (where the
+# two shifts since its last landing left it), pair B from the same point half a cycle later. Only the
+# first swing of a walk differs (trot_feet lifts pair A from p, a half step); the environment blends
+# its first gait_ramp_s from the standing pose instead. As a GaitParams (quadson_mjx.gait): cycle 4T,
+# duty 3/4 (each leg swings one phase of four), pair A's swing the last quarter of its phase (offset
+# 3/4, so its stance starts at t = T), pair B's half a cycle later; step_length_m is the distance a
+# foot travels per cycle at the gait's own speed, 0.05 m/s (seed 003's forward command).
+GAIT_NAMES: tuple[str, ...] = ("trot_discontinuous",)
+SEED_SPEED = 0.05  # [m/s] seed 003's forward command (experiment 2)
+TROT = {
+    "phase_offset": np.where([leg in C.TROT_PAIRS[0] for leg in C.LEGS], 0.75, 0.25),
+    "cycle_s": PHASES_PER_CYCLE * C.STEP_PERIOD,
+    "duty": 0.75,
+    "step_height_m": C.STEP_HEIGHT,
+    "step_length_m": SEED_SPEED * PHASES_PER_CYCLE * C.STEP_PERIOD,
+    "swing": "cycloid",
+    "p_t": C.TROT_P_T,
+    "p_n": C.TROT_P_N,
+    "discontinuous": True,
+}
+
+
+def gait_params(name: str = "trot_discontinuous", **overrides) -> base_gait.GaitParams:
+    """Caramel's gait `name` (GAIT_NAMES) as a GaitParams, with field overrides (cycle_s, step
+    length and height, p_t, p_n). Raises ValueError on another gait, another swing than the cycloid
+    or another pair timing (the planner below implements seed 003's trot only), and on a phase
+    T = cycle_s / 4 that is not a whole number (>= 2) of 20 ms ticks."""
+    if name not in GAIT_NAMES:
+        raise ValueError(f"unknown gait {name!r} for caramel; choose from {GAIT_NAMES}")
+    fixed = {"phase_offset", "duty", "discontinuous"}
+    if fixed & set(overrides):
+        raise ValueError(f"caramel's trot fixes {sorted(fixed)}; got overrides {sorted(overrides)}")
+    if overrides.get("swing", "cycloid") not in ("cycloid", swing.swing_shape_index("cycloid")):
+        raise ValueError(f"caramel's trot swings on seed 003's cycloid; got swing {overrides['swing']!r}")
+    p = base_gait.params_from(TROT, **overrides)
+    swing.cycloid_tick_times(p.cycle_s / PHASES_PER_CYCLE, p.p_t, p.p_n, C.TICK_S)  # raises if not
+    return p
+
+
+def _rot_z_jnp(theta: jax.Array) -> jax.Array:
+    """theta (...) -> (..., 3, 3) rotation about z."""
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    z, o = jnp.zeros_like(theta), jnp.ones_like(theta)
+    return jnp.stack([jnp.stack([c, -s, z], -1), jnp.stack([s, c, z], -1), jnp.stack([z, z, o], -1)], -2)
+
+
+def foot_targets(t: jax.Array, command: jax.Array, params: base_gait.GaitParams) -> jax.Array:
+    """The steady-state discontinuous trot at gait time t, in JAX.
+
+    t: (...) gait time [s], held at the last 20 ms tick (round(t / tick)); command: (..., 3) or (3,)
+    (vx, vy [m/s], yaw_rate [rad/s]) averaged over a cycle; params: gait_params() with concrete
+    cycle_s, p_t, p_n (the tick table is built in numpy) -> (..., 4, 3) feet in the body frame [m].
+    Equals trot_feet tick for tick from the second phase on (tests/test_caramel_env.py).
+    """
+    period_s = float(params.cycle_s) / PHASES_PER_CYCLE
+    tick_times = swing.cycloid_tick_times(period_s, float(params.p_t), float(params.p_n), C.TICK_S)
+    n = len(tick_times)
+    u_table = tick_times / period_s
+    # the body shift's profile: the cycloid's horizontal progress (K - sin K) / 2 pi, K = 2 pi u (seed
+    # 003 eq. 1; swing.cycloid_swing), in numpy: a constant of the trace like the tick table
+    along_table = u_table - np.sin(2.0 * np.pi * u_table) / (2.0 * np.pi)
+    t = jnp.asarray(t, dtype=jnp.result_type(float))
+    command = jnp.asarray(command, t.dtype)
+    tick = jnp.mod(jnp.round(t / C.TICK_S).astype(jnp.int32), PHASES_PER_CYCLE * n)
+    phase, i = tick // n, tick % n  # (...)
+    u = jnp.asarray(u_table, t.dtype)[i][..., None]  # (..., 1): one value for the 4 legs
+    s = jnp.asarray(along_table, t.dtype)[i][..., None, None]  # (..., 1, 1)
+    shift_s = 2.0 * period_s
+    trans = jnp.stack([command[..., 0], command[..., 1], jnp.zeros_like(command[..., 0])], -1) * shift_s
+    trans = trans[..., None, :]  # (..., 1, 3)
+    theta = command[..., 2] * shift_s  # (...)
+    p = jnp.asarray(nominal_feet(), t.dtype)  # (4, 3)
+    rot = lambda a, f: jnp.einsum("...ij,...lj->...li", _rot_z_jnp(a), f)  # noqa: E731
+    land = rot(theta, p) + trans  # (..., 4, 3)
+    lift = rot(-theta, p - trans)
+    perm = jnp.array([0, 2, 1])  # swing.py lifts along its +y: swap y and z (cycloid_points)
+    swinging = swing.cycloid_swing(u, lift[..., perm], land[..., perm], params.step_height_m)[..., perm]
+    ang = (-s[..., 0, 0] * theta)[..., None]  # (..., 1)
+    after_landing = jnp.einsum("...ij,...lj->...li", _rot_z_jnp(ang[..., 0]), land - s * trans)
+    before_lift = jnp.einsum("...ij,...lj->...li", _rot_z_jnp(ang[..., 0]), p - s * trans)
+    after_landing = after_landing.at[..., 2].set(p[:, 2])
+    before_lift = before_lift.at[..., 2].set(p[:, 2])
+    pair_b = jnp.asarray([leg in C.TROT_PAIRS[1] for leg in C.LEGS])
+    local = jnp.where(pair_b, (phase[..., None] + 2) % PHASES_PER_CYCLE, phase[..., None])[..., None]
+    return jnp.where(
+        local == 0,
+        swinging,
+        jnp.where(
+            local == 1, after_landing, jnp.where(local == 2, jnp.broadcast_to(p, land.shape), before_lift)
+        ),
+    )
