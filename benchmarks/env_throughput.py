@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mujoco import mjx  # noqa: E402
 
-from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env import LocomotionEnv  # noqa: E402
 from quadson_mjx.env_config import env_config  # noqa: E402
 from quadson_mjx.wrappers import wrap_for_training  # noqa: E402
 
@@ -41,7 +41,7 @@ def _time(fn, args, repeats):
     return best
 
 
-def physics_only(env: QuadsonEnv, n_envs: int, steps: int, repeats: int) -> float:
+def physics_only(env: LocomotionEnv, n_envs: int, steps: int, repeats: int) -> float:
     sys_ = env.sys
     n_sub = env._n_substeps
     home_q, home_u = env._home_qpos, env._home_ctrl
@@ -98,7 +98,7 @@ def main(argv=None):
     p.add_argument("--no-wrapped", action="store_true")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    env = QuadsonEnv(env_config())
+    env = LocomotionEnv(env_config())
     device = jax.devices()[0].device_kind
     rows = []
     for n in args.envs:

@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mujoco import mjx  # noqa: E402
 
-from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env import LocomotionEnv  # noqa: E402
 from quadson_mjx.env_config import env_config  # noqa: E402
 from quadson_mjx.robots.quadson import model as qmodel  # noqa: E402
 
@@ -105,7 +105,7 @@ def physics_only(m: mujoco.MjModel, qpos0, ctrl0, n_envs: int, steps: int, repea
     return {"physics_steps_per_s": n_envs * steps / best, "physics_compile_s": first - best}
 
 
-def env_under_gait(env: QuadsonEnv, n_envs: int, steps: int, repeats: int) -> dict:
+def env_under_gait(env: LocomotionEnv, n_envs: int, steps: int, repeats: int) -> dict:
     """Env steps/s, closure residual [m] and fallen share under the gait with small offsets."""
     ids = qmodel.model_ids(env.mj_model)
     step = jax.vmap(env.step)
@@ -182,7 +182,7 @@ def main(argv=None):
         cfg = env_config()
         for key, value in SETTINGS[name].items():
             cfg[key] = value
-        env = QuadsonEnv(cfg)
+        env = LocomotionEnv(cfg)
         m = env.mj_model
         dx = mjx.make_data(env.sys)
         for n in args.envs:

@@ -19,7 +19,7 @@ import jax
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env import LocomotionEnv  # noqa: E402
 from quadson_mjx.env_config import env_config  # noqa: E402
 from quadson_mjx.randomize import randomization_fn  # noqa: E402
 from quadson_mjx.wrappers import wrap_for_training  # noqa: E402
@@ -28,7 +28,7 @@ from train.ppo_mjx import ENV_PRESETS  # noqa: E402
 
 def steps_per_s(preset: str, terrain: str, n_envs: int, n_steps: int, repeats: int) -> tuple[float, float]:
     """-> (env steps/s, compile + first run [s])."""
-    env = QuadsonEnv(env_config(terrain=terrain, **ENV_PRESETS[preset]))
+    env = LocomotionEnv(env_config(terrain=terrain, **ENV_PRESETS[preset]))
     rand = None
     if env.config.randomize:
         rand = functools.partial(

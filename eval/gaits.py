@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from quadson_mjx import gait_eval  # noqa: E402
 from quadson_mjx import rollout as R  # noqa: E402
 from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env import LocomotionEnv  # noqa: E402
 from quadson_mjx.env_config import GAIT_RECIPES, SEED_EPISODE_S, env_config, with_added_keys  # noqa: E402
 
 FIVE = ("walk", "trot", "pace", "bound", "gallop")
@@ -88,7 +88,7 @@ def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
             env_cfg = apply_overrides(env_cfg, ["command_tracking=false", "randomize=true"])
     else:
         env_cfg = env_config(gait=gait, gait_recipe=True, **TRAINING_PHYSICS)
-    env = QuadsonEnv(env_cfg)
+    env = LocomotionEnv(env_cfg)
     controllers = [c for c in (R.gait_only(env), R.pid_stabilizer(env)) if c.name in args.controllers]
     if policy is not None and "policy" in args.controllers:
         controllers.append(R.policy_controller(policy))

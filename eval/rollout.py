@@ -40,8 +40,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from quadson_mjx import foxglove_mcap, gait  # noqa: E402
 from quadson_mjx import rollout as R  # noqa: E402
 from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env import QuadsonEnv  # noqa: E402
+from quadson_mjx.env import LocomotionEnv  # noqa: E402
 from quadson_mjx.env_config import env_config, with_added_keys  # noqa: E402
+from quadson_mjx.robots import ROBOT_NAMES  # noqa: E402
 
 SUITE_YAW_RATE = 0.25  # rad/s, seed 003's turning test
 # the command sweep: the joystick range of the issue, a 5 x 3 x 5 grid (75 envs, one command each)
@@ -87,7 +88,13 @@ def parse(argv):
     p.add_argument("--run", default=None, help="run directory of a trained policy (overrides --controller)")
     p.add_argument("--checkpoint", default=None, help="checkpoint file of --run (default: newest)")
     p.add_argument("--terrain", default=None, choices=["flat", "rough"], help="default: flat, or the run's")
-    p.add_argument("--gait", default="trot")
+    p.add_argument("--gait", default=None, help="a gait of the robot (default: the robot's, Quadson's trot)")
+    p.add_argument(
+        "--robot",
+        default="quadson",
+        choices=list(ROBOT_NAMES),
+        help="robot of --controller (a --run brings its own)",
+    )
     p.add_argument("--vx", type=float, default=None, help="m/s")
     p.add_argument("--vy", type=float, default=0.0, help="m/s")
     p.add_argument("--yaw-rate", type=float, default=0.0, help="rad/s")
@@ -182,12 +189,14 @@ def build(args, overrides, controller_name: str, terrain: str | None):
             env_cfg = apply_overrides(env_cfg, [f"terrain={terrain}"])
         if args.randomize:
             env_cfg = apply_overrides(env_cfg, RANDOMIZE_OVERRIDES)
-        env = QuadsonEnv(env_cfg)
+        env = LocomotionEnv(env_cfg)
         ckpt = args.checkpoint or str(training.latest_checkpoint(Path(args.run))[0])
         return env, R.policy_controller(policy), {"run_dir": str(args.run), "checkpoint": ckpt}
     extra = RANDOMIZE_OVERRIDES if args.randomize else []
-    env_cfg = apply_overrides(env_config(terrain=terrain or "flat", gait=args.gait), [*overrides, *extra])
-    env = QuadsonEnv(env_cfg)
+    env_cfg = apply_overrides(
+        env_config(terrain=terrain or "flat", gait=args.gait, robot=args.robot), [*overrides, *extra]
+    )
+    env = LocomotionEnv(env_cfg)
     return env, R.named_controller(env, controller_name), {"run_dir": "", "checkpoint": ""}
 
 

@@ -111,6 +111,13 @@ class LoopConfig(NamedTuple):
 
     @classmethod
     def from_env_config(cls, cfg: dict) -> LoopConfig:
+        """Raises ValueError for a policy of another robot than Quadson (the loop's gait and IK are
+        Quadson's)."""
+        robot = cfg.get("robot", "quadson")
+        if robot != "quadson":
+            raise ValueError(
+                f"the deployment loop runs Quadson's gait and five-bar IK; this policy is {robot}'s"
+            )
         return cls(
             gait=gait_np.gait_params(cfg["gait"], swing=cfg["swing"], scale=cfg.get("gait_scale")),
             ctrl_dt=float(cfg["ctrl_dt"]),

@@ -1,9 +1,10 @@
-"""The locomotion environment: seed 000's RL formulation on the closed-chain model, in MJX.
+"""The locomotion environment: seed 000's RL formulation on a robot of quadson_mjx.robots, in MJX.
 
 A policy adds foot offsets to a classical gait (seed 000 section 8): each control step the gait gives
-foot targets in the shoulder frames, the action adds up to +-5 cm per axis, the five-bar inverse
-kinematics turns them into the 12 motor position targets, and MJX steps the closed-chain model
-several physics steps. Pure `reset(rng)` / `step(state, action)` in brax's `Env` interface, so
+foot targets in the robot's gait frames, the action adds up to +-action_scale_m per axis (Quadson:
+5 cm), the robot's inverse kinematics turns them into the 12 motor position targets (Quadson's
+five-bar IK, Caramel's serial-leg IK), and MJX steps the model several physics steps. Quadson is
+the default robot (its closed chain); `env_config(robot="caramel")` runs seed 003's robot and trot. Pure `reset(rng)` / `step(state, action)` in brax's `Env` interface, so
 `brax.training.agents.ppo.train` takes it directly (wrap it with `quadson_mjx.wrappers`).
 
 Safety inside jit: a non-finite or exploded physics state ends the episode, its observation and
@@ -21,6 +22,8 @@ base reached the edge of the stone field: a truncation, not a fall).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -30,11 +33,10 @@ from mujoco import mjx
 
 from quadson_mjx import gait, rewards, terrain
 from quadson_mjx.config import freeze
-from quadson_mjx.env_config import env_config, env_gait, with_added_keys
-from quadson_mjx.robots.quadson import constants as C
-from quadson_mjx.robots.quadson import model as qmodel
+from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_added_keys
+from quadson_mjx.robots import get_robot
 
-EXPLODED_SPEED = 50.0  # m/s or rad/s: no Quadson state is this fast; treat it as a blown-up solve
+EXPLODED_SPEED = 50.0  # m/s or rad/s: no state of either robot is this fast; treat it as a blown-up solve
 
 
 def quat_to_rpy(quat):
@@ -67,8 +69,24 @@ def quat_rotate_inverse(quat, vec):
     return quat_rotate(quat * jnp.array([1.0, -1.0, -1.0, -1.0], quat.dtype), vec)
 
 
-class QuadsonEnv(Env):
-    """Quadson on flat or rough ground; immutable after __init__."""
+def _name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray:
+    ids = np.array([mujoco.mj_name2id(model, objtype, n) for n in names], dtype=np.int64)
+    missing = [n for n, i in zip(names, ids, strict=True) if i < 0]
+    if missing:
+        raise KeyError(f"{objtype.name} {missing} not in the model")
+    return ids
+
+
+class _PhysicsState(NamedTuple):
+    """The part of an mjx.Data that the observation reads."""
+
+    qpos: jax.Array
+    qvel: jax.Array
+
+
+class LocomotionEnv(Env):
+    """A robot of quadson_mjx.robots (config key `robot`) on flat or rough ground; immutable after
+    __init__. The robot supplies model, names, home pose, gait and the foot -> motor mapping."""
 
     # info entries that restart from the first state when an episode ends (see wrappers.py)
     RESTART_INFO = ("gait_progress", "episode_time", "last_ctrl", "foot_targets")
@@ -91,8 +109,10 @@ class QuadsonEnv(Env):
 
     def __init__(self, config=None):
         cfg = with_added_keys(env_config() if config is None else config)
+        check_env_config(cfg)
         self._config = freeze(cfg)
-        self._mj_model = qmodel.load_model(cfg.terrain)
+        self._robot = robot = get_robot(cfg.robot)
+        self._mj_model = robot.load_model(cfg.terrain)
         # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
         # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
         self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
@@ -127,26 +147,28 @@ class QuadsonEnv(Env):
         self._ctrl_dt = float(cfg.ctrl_dt)
         self.episode_length = int(round(cfg.episode_length_s / cfg.ctrl_dt))
 
-        ids = qmodel.model_ids(self._mj_model)
-        self._motor_qpos = jnp.asarray(ids.motor_qposadr)  # (12,) LEGS x MOTORS order
-        self._actuator_of_motor = jnp.asarray(ids.motor_actuator)  # (12,) ctrl index of each motor
-        self._base_body = ids.base_body
-        self._home_qpos = jnp.asarray(qmodel.home_qpos(self._mj_model))
-        self._home_ctrl = jnp.asarray(qmodel.home_ctrl(self._mj_model))
-        planar = qmodel.home_foot_targets()  # (4, 2) x, y in the leg plane
-        self._home_feet = jnp.asarray(np.pad(planar, ((0, 0), (0, 1))), jnp.float32)  # (4, 3), z = 0
+        m = self._mj_model
+        motor_joints = _name_ids(m, mujoco.mjtObj.mjOBJ_JOINT, robot.motor_joints)
+        self._motor_qpos = jnp.asarray(m.jnt_qposadr[motor_joints])  # (12,) legs x motors order
+        # (12,) ctrl index of each motor
+        self._actuator_of_motor = jnp.asarray(_name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators))
+        self._base_body = int(_name_ids(m, mujoco.mjtObj.mjOBJ_BODY, [robot.root_body])[0])
+        key = int(_name_ids(m, mujoco.mjtObj.mjOBJ_KEY, [robot.home_keyframe])[0])
+        self._home_qpos = jnp.asarray(m.key_qpos[key])
+        self._home_ctrl = jnp.asarray(m.key_ctrl[key])
+        self._home_feet = jnp.asarray(robot.home_feet, jnp.float32)  # (4, 3) gait frames [m]
         self._gait = env_gait(cfg)
         self._seed_speed = float(gait.seed_speed(self._gait))
         self._forward_target = self._seed_speed if cfg.reward.target_gait_speed else cfg.reward.forward_target
-        self._foot_geoms = jnp.asarray(
-            [
-                mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, f"{leg}_foot_collision")
-                for leg in C.LEGS
-            ]
-        )
-        self._root_q = ids.root_qposadr
-        self._root_v = ids.root_dofadr
-        if (self._root_q, self._root_v) != (0, 0):
+        self._foot_geoms = jnp.asarray(_name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
+        root = int(m.body_jntadr[self._base_body])
+        self._root_q = int(m.jnt_qposadr[root])
+        self._root_v = int(m.jnt_dofadr[root])
+        if (
+            root < 0
+            or m.jnt_type[root] != mujoco.mjtJoint.mjJNT_FREE
+            or (self._root_q, self._root_v) != (0, 0)
+        ):
             raise ValueError("the base's free joint must come first in qpos/qvel")
 
     # --- brax Env interface -------------------------------------------------------------------
@@ -169,6 +191,16 @@ class QuadsonEnv(Env):
     @property
     def mj_model(self) -> mujoco.MjModel:
         return self._mj_model
+
+    @property
+    def motor_actuators(self) -> jax.Array:
+        """(12,) ctrl index of each motor, the robot's motor order."""
+        return self._actuator_of_motor
+
+    @property
+    def robot(self):
+        """The quadson_mjx.robots.Robot of the config's `robot`."""
+        return self._robot
 
     @property
     def gait_params(self) -> gait.GaitParams:
@@ -330,12 +362,13 @@ class QuadsonEnv(Env):
     # --- pieces of step ---------------------------------------------------------------------------
     def gait_targets(self, info, params=None, command=None):
         """The gait's foot targets for the coming control step, before any action: (4, 3) in the
-        shoulder frames [m], blended from the home stance over the first gait_ramp_s (smoothstep):
+        robot's gait frames [m] (Quadson: shoulder frames), blended from the home stance over the
+        first gait_ramp_s (smoothstep):
         the gait's first targets are up to 6 cm from the home feet, a jump the servos would slam.
         Controllers that act on the gait (e.g. the PID stabilizer) start from these."""
         params = self._gait if params is None else params
         command = info["command"] if command is None else command
-        targets = gait.foot_targets(info["gait_progress"] * params.cycle_s, command, params)
+        targets = self._robot.foot_targets(info["gait_progress"] * params.cycle_s, command, params)
         s = jnp.clip((info["episode_time"] + self._ctrl_dt) / self._config.gait_ramp_s, 0.0, 1.0)
         return self._home_feet + (s * s * (3.0 - 2.0 * s)) * (targets - self._home_feet)
 
@@ -353,9 +386,9 @@ class QuadsonEnv(Env):
             command = info["command"] * length_scale * freq_scale
         else:
             command = info["command"]
-        targets = self.gait_targets(info, params, command)  # (4, 3) shoulder frames
+        targets = self.gait_targets(info, params, command)  # (4, 3) gait frames
         targets = targets + cfg.action_scale_m * action[:12].reshape(4, 3)
-        angles, valid = gait.motor_targets(targets)  # (4, 3), (4,)
+        angles, valid = self._robot.motor_targets(targets)  # (4, 3), (4,)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles.reshape(12))
         return ctrl, jnp.sum(~valid), params.cycle_s, targets
 
@@ -408,6 +441,11 @@ class QuadsonEnv(Env):
         lin_vel = quat_rotate_inverse(quat, data.qvel[0:3])  # free joint: world-frame linear velocity
         ang_vel = data.qvel[3:6]  # free joint: angular velocity already in the body frame
         return rpy, lin_vel, ang_vel
+
+    def observation(self, qpos, qvel, info):
+        """The observation of a physics state given as qpos (nq,), qvel (nv,) (e.g. CPU MuJoCo's, or a
+        robot's estimate), at info's gait_progress and command; sensor noise as the config says."""
+        return self._get_obs(_PhysicsState(jnp.asarray(qpos), jnp.asarray(qvel)), info)
 
     def _get_obs(self, data, info, base_state=None):
         """29 values (seed 000): rpy, body linear and angular velocity, 12 motor positions, sin/cos of

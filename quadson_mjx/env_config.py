@@ -12,7 +12,8 @@ import math
 
 import ml_collections
 
-from quadson_mjx.gait import GAIT_NAMES, GaitParams, gait_params
+from quadson_mjx.gait import GaitParams
+from quadson_mjx.robots import ROBOT_NAMES, get_robot
 from quadson_mjx.robots.quadson import constants
 
 SEED_EPISODE_S = 4500 / 240.0  # seed 000: 4500 PyBullet steps at 240 Hz = 18.75 s
@@ -86,6 +87,7 @@ GAIT_RECIPES = {
 # did (dotted names). A config saved before a key existed gets it from `with_added_keys`, which the
 # environment applies to every config it is given.
 ENV_KEYS_ADDED = {
+    "robot": "quadson",
     "base_terrain_contact": True,
     "joint_limits": True,
     "cone": "pyramidal",
@@ -125,13 +127,18 @@ def env_config(
     randomize: bool = False,
     pushes: bool = False,
     terrain: str = "flat",
-    gait: str = "trot",
+    gait: str | None = None,
     base_terrain_contact: bool = True,
     joint_limits: bool = True,
     joystick: bool = False,
     gait_recipe: bool = False,
+    robot: str = "quadson",
 ) -> ml_collections.ConfigDict:
     """The environment config. Defaults reproduce seed 000's RL formulation.
+
+    robot: "quadson" or "caramel" (quadson_mjx.robots); the robot's env_defaults replace the values
+        below that it names (Caramel: its gait, action scale, height target, kernels, command range).
+    gait: a gait of the robot (default: the robot's default gait, Quadson's trot).
 
     command_tracking: sample (vx, vy, yaw rate) per episode and reward tracking it (observation +3).
     randomize: domain randomization of friction, masses, motor strength, latency, sensor noise.
@@ -147,15 +154,20 @@ def env_config(
         gait's own speed as the forward target, the contact-pattern reward.
     """
     command_tracking = command_tracking or joystick
+    spec = get_robot(robot)
+    gait = spec.default_gait if gait is None else gait
     if terrain not in ("flat", "rough"):
         raise ValueError(f"terrain must be 'flat' or 'rough', got {terrain!r}")
-    if gait not in GAIT_NAMES:
-        raise ValueError(f"unknown gait {gait!r}; choose from {GAIT_NAMES}")
-    if gait_recipe and gait not in GAIT_RECIPES:
-        raise ValueError(f"no gait recipe for {gait!r}; recipes exist for {sorted(GAIT_RECIPES)}")
+    if gait not in spec.gait_names:
+        raise ValueError(f"unknown gait {gait!r} for {robot}; choose from {spec.gait_names}")
+    if gait_recipe and (robot != "quadson" or gait not in GAIT_RECIPES):
+        raise ValueError(
+            f"no gait recipe for {robot}'s {gait!r}; recipes exist for Quadson's {sorted(GAIT_RECIPES)}"
+        )
     randomize = randomize or gait_recipe
     cfg = ml_collections.ConfigDict(
         {
+            "robot": robot,
             "terrain": terrain,
             # Base box <-> ground contacts. MJX's box-heightfield collision is expensive: on the rough
             # scene it made physics 22-36x slower on the 2-core CPU (two runs of
@@ -239,12 +251,23 @@ def env_config(
         cfg.reward.forward_sigma = recipe["forward_sigma"]
         cfg.reward.target_gait_speed = True
         cfg.reward.weights.contact_phase = recipe["contact_phase"]
+    for dotted, value in spec.env_defaults.items():
+        *path, leaf = dotted.split(".")
+        node = cfg
+        for p in path:
+            node = node[p]
+        if leaf not in node:
+            raise KeyError(f"{robot}'s env_defaults name env.{dotted}, which the config does not have")
+        node[leaf] = ml_collections.ConfigDict(value) if isinstance(value, dict) else value
+    cfg.gait = gait
     cfg.lock()
     return cfg
 
 
 def env_gait(cfg) -> GaitParams:
-    """The gait an env config runs: constants.GAITS[cfg.gait] with cfg.swing and cfg.gait_scale."""
+    """The gait an env config runs: the robot's gait table entry cfg.gait with cfg.swing and
+    cfg.gait_scale (Quadson: constants.GAITS)."""
+    gait_params = get_robot(cfg.get("robot", "quadson")).gait_params
     base = gait_params(cfg.gait)
     scale = cfg.get("gait_scale") or {}
     return gait_params(
@@ -292,10 +315,16 @@ def check_env_config(cfg) -> None:
         if head in ("command_range", "randomization", "push") and isinstance(value, tuple | list):
             if len(value) != 2 or not value[0] <= value[1]:
                 raise ValueError(f"env.{key} must be a (low, high) range with low <= high, got {value!r}")
+    robot = cfg.get("robot", "quadson")
+    if robot not in ROBOT_NAMES:
+        raise ValueError(f"env.robot is {robot!r}; choose from {list(ROBOT_NAMES)}")
+    spec = get_robot(robot)
     if cfg.terrain not in ("flat", "rough"):
         raise ValueError(f"env.terrain is {cfg.terrain!r}; choose 'flat' or 'rough'")
-    if cfg.gait not in GAIT_NAMES:
-        raise ValueError(f"env.gait is {cfg.gait!r}; choose from {list(GAIT_NAMES)}")
+    if cfg.gait not in spec.gait_names:
+        raise ValueError(f"env.gait is {cfg.gait!r}; {robot} has {list(spec.gait_names)}")
+    if cfg.gait_action and not spec.gait_action:
+        raise ValueError(f"env.gait_action: {robot}'s gait cannot be scaled by the policy")
     if cfg.swing not in SWING_SHAPES:
         raise ValueError(f"env.swing is {cfg.swing!r}; choose from {list(SWING_SHAPES)}")
     positive = lambda v: v > 0  # noqa: E731
@@ -318,6 +347,10 @@ def check_env_config(cfg) -> None:
         _number(key, node[leaf], ok, what)
     for key in ("cycle_s", "step_length_m", "step_height_m"):
         _number(f"gait_scale.{key}", cfg.gait_scale[key], positive, "> 0 (a factor on the gait table)")
+    try:
+        env_gait(cfg)
+    except ValueError as e:
+        raise ValueError(f"env.gait, env.swing, env.gait_scale: {robot}'s {cfg.gait!r}: {e}") from e
     for key in ("rpy", "lin_vel", "ang_vel", "motor_pos"):
         _number(f"noise.{key}", cfg.noise[key], non_negative, ">= 0")
     r = cfg.randomization

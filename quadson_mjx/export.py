@@ -164,10 +164,10 @@ def export_run(
     out_path = check_output(out_path, overwrite)
     from quadson_mjx import training
     from quadson_mjx.config import to_json
-    from quadson_mjx.env import QuadsonEnv
+    from quadson_mjx.env import LocomotionEnv
 
     env_cfg, ppo_cfg = training.load_run_config(run_dir)
-    env = QuadsonEnv(env_cfg)
+    env = LocomotionEnv(env_cfg)
     path = Path(checkpoint) if checkpoint else training.latest_checkpoint(run_dir)[0]
     params = training.load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
     meta = {

@@ -501,7 +501,6 @@ def record(
         raise ValueError(f"a rollout needs n_envs >= 1 and n_steps >= 1, got {n_envs} and {n_steps}")
     from quadson_mjx import rollout as qrollout
     from quadson_mjx.config import to_json
-    from quadson_mjx.robots.quadson.model import model_xml_text
     from quadson_mjx.training import versions
 
     ctrl_dt = env.ctrl_dt
@@ -523,7 +522,8 @@ def record(
         w.write_metadata("rollout", info)
         w.write_metadata("env_config", {"json": to_json(env.config)})
         w.write_metadata("versions", versions())
-        w.attach("quadson.xml", model_xml_text(env.config.terrain).encode(), "application/xml")
+        robot = env.robot
+        w.attach(f"{robot.name}.xml", robot.model_xml_text(env.config.terrain).encode(), "application/xml")
         w.log(0, "info", f"start: {controller.name}, {n_envs} env(s), {n_steps} steps of {ctrl_dt} s")
         w.write_scene(0)
         runs = qrollout.run(env, controller, rng, n_envs, n_steps, segment_steps, command, randomize)

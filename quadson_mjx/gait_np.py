@@ -1,5 +1,5 @@
 """Numpy versions of what the environment does between an action and the motor targets: the gait's
-foot targets (gait.py, swing.py), the env's start ramp (env.QuadsonEnv.gait_targets) and the
+foot targets (gait.py, swing.py), the env's start ramp (env.LocomotionEnv.gait_targets) and the
 five-bar IK with its clamp (fivebar.leg_ik, gait.motor_targets). For the robot's computer: numpy and
 quadson_mjx.robots.quadson.constants only, no jax (tests/test_deploy.py checks them against the JAX code the
 simulator runs).
@@ -149,7 +149,7 @@ def home_feet() -> np.ndarray:
 
 
 def ramped_gait_targets(progress, episode_time_s, command, g: Gait, ctrl_dt: float, ramp_s: float):
-    """env.QuadsonEnv.gait_targets: the gait at `progress` (fraction of a cycle), blended from the home
+    """env.LocomotionEnv.gait_targets: the gait at `progress` (fraction of a cycle), blended from the home
     stance by a smoothstep of (episode_time_s + ctrl_dt) / ramp_s. -> (..., 4, 3) [m]."""
     targets = foot_targets(np.asarray(progress) * g.cycle_s, command, g)
     s = _clip((np.asarray(episode_time_s) + ctrl_dt) / ramp_s, 0.0, 1.0)[..., None, None]

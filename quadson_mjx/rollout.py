@@ -34,7 +34,6 @@ from mujoco import mjx
 from quadson_mjx import gait
 from quadson_mjx.env import quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.robots.quadson import constants as C
-from quadson_mjx.robots.quadson import model as qmodel
 from quadson_mjx.stabilizer import SEED_003_GAINS, PidGains, pid_init, pid_step
 
 CONTROLLERS = ("gait", "pid")  # named controllers; a policy comes from a run directory
@@ -58,16 +57,21 @@ def gait_only(env) -> Controller:
     )
 
 
-def pid_action(gait_targets, u_roll_pitch, action_scale_m):
+def pid_action(gait_targets, u_roll_pitch, action_scale_m, tilt_feet=None):
     """Body roll/pitch command -> normalised foot-offset action (seed 003 through body kinematics).
 
-    gait_targets: (4, 3) the gait's foot targets, shoulder frames [m]; u_roll_pitch: (2,) body roll,
-    pitch command [rad] -> (12,) offsets = apply_body_offset(targets, (0, 0, 0, u_roll, u_pitch, 0))
+    gait_targets: (4, 3) the gait's foot targets, gait frames [m]; u_roll_pitch: (2,) body roll,
+    pitch command [rad]; tilt_feet: the robot's body kinematics (Robot.tilt_feet; default Quadson's,
+    apply_body_offset with pose (0, 0, 0, u_roll, u_pitch, 0)) -> (12,) offsets tilt_feet(targets, u)
     - targets, clipped to +-action_scale_m and divided by it (so in [-1, 1]).
     """
-    zero = jnp.zeros((), gait_targets.dtype)
-    pose = jnp.stack([zero, zero, zero, u_roll_pitch[0], u_roll_pitch[1], zero])
-    offsets = gait.apply_body_offset(gait_targets, pose) - gait_targets
+    if tilt_feet is None:
+        zero = jnp.zeros((), gait_targets.dtype)
+        pose = jnp.stack([zero, zero, zero, u_roll_pitch[0], u_roll_pitch[1], zero])
+        tilted = gait.apply_body_offset(gait_targets, pose)
+    else:
+        tilted = tilt_feet(gait_targets, u_roll_pitch)
+    offsets = tilted - gait_targets
     return (jnp.clip(offsets, -action_scale_m, action_scale_m) / action_scale_m).reshape(12)
 
 
@@ -78,7 +82,8 @@ def pid_stabilizer(env, gains: PidGains = SEED_003_GAINS) -> Controller:
 
     def act(carry, state, key):
         carry, u = pid_step(carry, state.obs[:2], gains)
-        return carry, _pad_action(env, pid_action(env.gait_targets(state.info), u, scale))
+        action = pid_action(env.gait_targets(state.info), u, scale, env.robot.tilt_feet)
+        return carry, _pad_action(env, action)
 
     return Controller("pid", pid_init, act)
 
@@ -108,12 +113,12 @@ def imu_acceleration(quat, lin_acc_world, gravity):
     return quat_rotate_inverse(quat, lin_acc_world - gravity)
 
 
-def foot_geom_ids(mj_model) -> np.ndarray:
-    """(4,) collision geom of each foot, LEGS order."""
+def foot_geom_ids(mj_model, legs=C.LEGS) -> np.ndarray:
+    """(4,) collision geom of each foot, `legs` order."""
     import mujoco
 
     return np.array(
-        [mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_GEOM, f"{leg}_foot_collision") for leg in C.LEGS]
+        [mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_GEOM, f"{leg}_foot_collision") for leg in legs]
     )
 
 
@@ -159,7 +164,7 @@ class Trajectory(NamedTuple):
     imu_acc: jax.Array  # (T, B, 3) what an accelerometer at the base origin reads, base frame [m/s^2]
     foot_force: jax.Array  # (T, B, 4) normal contact force on each foot [N] (0: no contact)
     actuator_force: jax.Array  # (T, B, nu) [N m]
-    closure_residual: jax.Array  # (T, B, 4) [m]
+    closure_residual: jax.Array  # (T, B, 4) [m]; 0 for a robot without closed chains (Caramel)
     reward: jax.Array  # (T, B)
     reward_terms: dict  # name -> (T, B), weighted as the env sums them
     done: jax.Array  # (T, B) bool: this step ended the episode (then the env restarts)
@@ -218,9 +223,9 @@ def randomized_step(env, n_envs: int, rng):
 def make_rollout(env, controller: Controller, n_steps: int, step_b=None):
     """-> jitted rollout(carry) -> (carry, Trajectory [n_steps, B]) of consecutive control steps.
     step_b: batched env step (default: vmap of env.step on the nominal model; randomized_step)."""
-    ids = qmodel.model_ids(env.mj_model)
-    motor_actuator = jnp.asarray(ids.motor_actuator)
-    foot_geoms = jnp.asarray(foot_geom_ids(env.mj_model))
+    robot = env.robot
+    motor_actuator = env.motor_actuators
+    foot_geoms = jnp.asarray(foot_geom_ids(env.mj_model, robot.legs))
     gravity = jnp.asarray(env.mj_model.opt.gravity, jnp.float32)
     act_b = jax.vmap(controller.act)
     step_b = jax.vmap(env.step) if step_b is None else step_b
@@ -253,7 +258,11 @@ def make_rollout(env, controller: Controller, n_steps: int, step_b=None):
             imu_acc=jax.vmap(imu_acceleration, in_axes=(0, 0, None))(quat, d.qacc[:, 0:3], gravity),
             foot_force=jax.vmap(lambda data: foot_forces(env.sys, data, foot_geoms))(d),
             actuator_force=d.actuator_force,
-            closure_residual=qmodel.closure_residual_mjx(kin.site_xpos, ids),
+            closure_residual=(
+                robot.closure_residual(env.mj_model, kin.site_xpos)
+                if robot.closure_residual is not None
+                else jnp.zeros(d.qpos.shape[:1] + (len(robot.legs),))
+            ),
             reward=nxt.reward,
             reward_terms={k[len("reward/") :]: v for k, v in nxt.metrics.items() if k.startswith("reward/")},
             done=done,

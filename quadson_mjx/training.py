@@ -364,10 +364,10 @@ def load_policy(run_dir: Path, checkpoint: Path | None = None, deterministic: bo
     """-> (policy(obs, key) -> (action, extras), env_cfg, ppo_cfg, params) from a run directory."""
     from brax.training.agents.ppo import networks as ppo_networks
 
-    from quadson_mjx.env import QuadsonEnv
+    from quadson_mjx.env import LocomotionEnv
 
     env_cfg, ppo_cfg = load_run_config(run_dir)
-    env = QuadsonEnv(env_cfg)
+    env = LocomotionEnv(env_cfg)
     path = checkpoint or latest_checkpoint(run_dir)[0]
     params = load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
     nets = make_networks(env.observation_size, env.action_size, ppo_cfg)
@@ -625,7 +625,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     from brax.training.agents.ppo import train as ppo
 
     from quadson_mjx import compat
-    from quadson_mjx.env import QuadsonEnv
+    from quadson_mjx.env import LocomotionEnv
     from quadson_mjx.env_config import check_env_config
     from quadson_mjx.mcap_log import McapLog
     from quadson_mjx.randomize import randomization_fn
@@ -647,8 +647,8 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         check_new_run_dir(run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
 
-    env = QuadsonEnv(env_cfg)
-    eval_env = QuadsonEnv(env_cfg)
+    env = LocomotionEnv(env_cfg)
+    eval_env = LocomotionEnv(env_cfg)
     per_epoch, epochs = epoch_steps(ppo_cfg)
     first_epoch = start_step // per_epoch
     state = compat.BraxTrainingState(first_epoch=first_epoch)
@@ -694,8 +694,9 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         log.metadata(
             "versions" if "versions" not in have_meta else f"versions_resume_step_{start_step}", vers
         )
-    if not (contents and any(a.name == "quadson.xml" for a in contents.attachments)):
-        log.attachment("quadson.xml", _model_xml(env_cfg.terrain).encode(), "application/xml")
+    xml_name = f"{env.robot.name}.xml"
+    if not (contents and any(a.name == xml_name for a in contents.attachments)):
+        log.attachment(xml_name, env.robot.model_xml_text(env_cfg.terrain).encode(), "application/xml")
     event = {"event": "resume" if resume else "start", "step": start_step}
     if resume:
         event.update(restored=restored, kept_log=kept.name if kept else "", copied_messages=len(old))
@@ -828,9 +829,3 @@ def _nest(record: dict) -> dict:
     from quadson_mjx.mcap_log import nest_metrics
 
     return nest_metrics(record)
-
-
-def _model_xml(terrain: str) -> str:
-    from quadson_mjx.robots.quadson import model as qmodel
-
-    return qmodel.model_xml_text(terrain)

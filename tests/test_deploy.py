@@ -18,7 +18,7 @@ import pytest
 
 from quadson_mjx import deploy, fivebar, gait, gait_np, swing
 from quadson_mjx.config import to_json
-from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.robots.quadson import constants as C
 
@@ -92,7 +92,7 @@ def test_loop_motor_targets_equal_the_env_step_start_ramp_included(gait_action):
     cfg = env_config()
     cfg.unlock()
     cfg.gait_action = gait_action
-    env = QuadsonEnv(cfg)
+    env = LocomotionEnv(cfg)
     policy = _FixedPolicy(cfg, env.observation_size, env.action_size)
     loop = deploy.DeployLoop(policy)
     actuator = np.asarray(env._actuator_of_motor)
@@ -184,7 +184,7 @@ def replay(tmp_path_factory):
     from quadson_mjx.foxglove_mcap import record
 
     policy, env_cfg, _, _ = training.load_policy(RUN)
-    env = QuadsonEnv(env_cfg)
+    env = LocomotionEnv(env_cfg)
     out = tmp_path_factory.mktemp("replay")
     path = out / "policy.mcap"
     summary = record(

@@ -15,14 +15,14 @@ import pytest
 
 from quadson_mjx import rewards
 from quadson_mjx.config import apply_overrides
-from quadson_mjx.env import QuadsonEnv, quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.env import LocomotionEnv, quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.env_config import env_config
 from quadson_mjx.wrappers import wrap_for_training
 
 
 @pytest.fixture(scope="module")
 def env():
-    return QuadsonEnv(env_config())
+    return LocomotionEnv(env_config())
 
 
 @pytest.fixture(scope="module")
@@ -184,8 +184,8 @@ def test_sensor_noise_is_fresh_every_step():
     # Regression: the noise key was only advanced by pushes, so with randomize on and pushes off
     # every step carried the same noise (a constant bias, not noise). Noise = noisy observation -
     # the noiseless observation of the same state (an env without randomization).
-    env = QuadsonEnv(env_config(randomize=True))
-    clean_env = QuadsonEnv(env_config())
+    env = LocomotionEnv(env_config(randomize=True))
+    clean_env = LocomotionEnv(env_config())
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     s1 = step(reset(jax.random.PRNGKey(0)), jnp.zeros(12))
     s2 = step(s1, jnp.zeros(12))
@@ -199,7 +199,7 @@ def test_base_terrain_contact_off_leaves_only_the_feet():
     from mujoco import mjx
 
     for on, slots in ((True, 8), (False, 4)):
-        e = QuadsonEnv(apply_overrides(env_config(), [f"base_terrain_contact={on}"]))
+        e = LocomotionEnv(apply_overrides(env_config(), [f"base_terrain_contact={on}"]))
         contact = mjx.make_data(e.sys)._impl.contact
         assert contact.dist.shape == (slots,)
         geom = mujoco.mj_name2id(e.mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")

@@ -20,7 +20,7 @@ import pytest
 from quadson_mjx import deploy, gait, gait_eval, gait_np
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
-from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import (
     GAIT_RECIPES,
     check_env_config,
@@ -238,7 +238,7 @@ def env():
     """The bound recipe with the training physics; reward.forward_target moved off the bound's 0.5
     m/s so that the forward reward tells the gait's speed from forward_target."""
     cfg = env_config(gait="bound", gait_recipe=True, base_terrain_contact=False, joint_limits=False)
-    return QuadsonEnv(apply_overrides(cfg, ["reward.forward_target=0.3"]))
+    return LocomotionEnv(apply_overrides(cfg, ["reward.forward_target=0.3"]))
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ import pytest
 
 from quadson_mjx import terrain
 from quadson_mjx.config import apply_overrides, from_json
-from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import ENV_KEYS_ADDED, env_config
 from quadson_mjx.randomize import randomization_fn
 from quadson_mjx.wrappers import wrap_for_training
@@ -35,14 +35,14 @@ def joy():
     cfg = apply_overrides(
         cfg, ["command_resample_s=(0.04, 0.06)", f"termination.base_clearance_m={CLEARANCE}"]
     )
-    env = QuadsonEnv(cfg)
+    env = LocomotionEnv(cfg)
     return env, jax.jit(env.reset), jax.jit(env.step)
 
 
 @pytest.fixture(scope="module")
 def robust():
     # train/ppo_mjx.py --env-preset robust --terrain rough, under the training wrappers
-    env = QuadsonEnv(
+    env = LocomotionEnv(
         env_config(joystick=True, randomize=True, pushes=True, terrain="rough", base_terrain_contact=False)
     )
     w = wrap_for_training(
@@ -183,7 +183,7 @@ def test_old_run_configs_load_with_their_behaviour():
         ROOT / "tests" / "data" / "legacy_run" / "config.json",
     ):
         old = from_json(json.dumps(json.loads(path.read_text())["env"]))
-        env = QuadsonEnv(old)
+        env = LocomotionEnv(old)
         for dotted, value in ENV_KEYS_ADDED.items():
             node = env.config
             for part in dotted.split("."):
@@ -200,7 +200,7 @@ def test_old_run_configs_load_with_their_behaviour():
         del node[leaf]
     now = {k: v for k, v in now.items() if v != {}}  # a group whose every key is new (gait_scale)
     assert now == published
-    assert math.isinf(float(QuadsonEnv(env_config()).sample_command(jax.random.PRNGKey(0))[1]))
+    assert math.isinf(float(LocomotionEnv(env_config()).sample_command(jax.random.PRNGKey(0))[1]))
 
 
 def test_gait_reach_over_the_joystick_range():

@@ -6,13 +6,13 @@ import pytest
 from mujoco import mjx
 
 from quadson_mjx.config import apply_overrides
-from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 
 
 def _rows(**overrides) -> int:
     cfg = apply_overrides(env_config(), [f"{k}={v}" for k, v in overrides.items()])
-    env = QuadsonEnv(cfg)
+    env = LocomotionEnv(cfg)
     return int(mjx.make_data(env.sys)._impl.efc_J.shape[0]), env
 
 
@@ -39,4 +39,4 @@ def test_constraint_rows_of_each_physics_option(overrides, rows):
 def test_bad_physics_option_names_the_key(key, value):
     cfg = apply_overrides(env_config(), [f"{key}={value}"])
     with pytest.raises(ValueError, match=f"env.{key}"):
-        QuadsonEnv(cfg)
+        LocomotionEnv(cfg)

@@ -7,14 +7,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.randomize import randomization_fn, randomize
 from quadson_mjx.wrappers import wrap_for_training
 
 
 def test_randomized_fields_ranges_and_axes():
-    env = QuadsonEnv(env_config(randomize=True))
+    env = LocomotionEnv(env_config(randomize=True))
     r = env.config.randomization
     model, in_axes = randomize(env.sys, jax.random.split(jax.random.PRNGKey(0), 64), r, env.base_body)
     f = np.asarray(model.geom_friction[:, :, 0])
@@ -36,7 +36,7 @@ def test_randomized_fields_ranges_and_axes():
 def test_training_wrappers_step_randomized_models():
     # brax's DomainRandomizationVmapWrapper swaps each environment's model in; two environments with
     # different friction/mass/servo strength step to finite, different states from the same start.
-    env = QuadsonEnv(env_config(randomize=True))
+    env = LocomotionEnv(env_config(randomize=True))
     w = wrap_for_training(
         env,
         10,

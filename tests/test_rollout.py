@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 
 from quadson_mjx import fivebar, mcap_check
 from quadson_mjx import rollout as R
-from quadson_mjx.env import QuadsonEnv
+from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.foxglove_mcap import record, step_time_ns
 from quadson_mjx.robots.quadson import constants as C
@@ -28,7 +28,7 @@ CTRL_DT = 0.02
 
 @pytest.fixture(scope="module")
 def env():
-    return QuadsonEnv(env_config())
+    return LocomotionEnv(env_config())
 
 
 @pytest.fixture(scope="module")
@@ -431,7 +431,7 @@ def test_randomized_step_and_per_env_commands():
     # --suite --randomize and the sweep: each env keeps its own command (the env's resampling is off
     # for a given command, its obs tail shows it), and every env steps on its own randomized model.
     # Reference for the model: the same states stepped on the nominal model differ from it.
-    env = QuadsonEnv(env_config(joystick=True, randomize=True))
+    env = LocomotionEnv(env_config(joystick=True, randomize=True))
     commands = np.array([[0.3, 0.0, 0.0], [0.0, 0.1, -0.4]], np.float32)
     carry = R.init_carry(env, R.gait_only(env), jax.random.PRNGKey(0), 2, commands)
     np.testing.assert_array_equal(carry.state.info["command"], commands)
@@ -446,4 +446,6 @@ def test_randomized_step_and_per_env_commands():
     with pytest.raises(ValueError, match="3 commands for 2 environments"):
         R.init_carry(env, R.gait_only(env), jax.random.PRNGKey(0), 2, np.zeros((3, 3)))
     with pytest.raises(ValueError, match="randomize on"):
-        next(R.run(QuadsonEnv(env_config()), R.gait_only(env), jax.random.PRNGKey(0), 2, 4, randomize=True))
+        next(
+            R.run(LocomotionEnv(env_config()), R.gait_only(env), jax.random.PRNGKey(0), 2, 4, randomize=True)
+        )

@@ -1,10 +1,11 @@
-"""Train a Quadson foot-offset policy with brax PPO on MJX.
+"""Train a foot-offset policy for Quadson or Caramel with brax PPO on MJX.
 
     python train/ppo_mjx.py                                   # the real job (small preset on a CPU)
     python train/ppo_mjx.py --ppo.num_timesteps=50000000 --env.reward.forward_target=0.4
     python train/ppo_mjx.py --preset test --run-dir runs/smoke
     python train/ppo_mjx.py --resume runs/20261121-101500
     python train/ppo_mjx.py --gait bound --run-dir results/gaits/bound   # a gait's recipe
+    python train/ppo_mjx.py --robot caramel --env-preset command --terrain rough   # seed 003's robot
 
 Env options: --env-preset seed|command|robust (seed 000's formulation; + velocity commands;
 the joystick recipe with domain randomization and pushes). --gait G trains seed 000's gait G with its
@@ -29,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from quadson_mjx import training  # noqa: E402
 from quadson_mjx.config import apply_overrides  # noqa: E402
 from quadson_mjx.env_config import GAIT_RECIPES, check_env_config, env_config  # noqa: E402
+from quadson_mjx.robots import ROBOT_NAMES  # noqa: E402
 
 # Training physics of every preset: feet-only ground contact and no joint-limit rows (the episode
 # ends before the base reaches the ground; the IK keeps targets in range): 28 constraint rows
@@ -56,6 +58,9 @@ def parse(argv):
         "--gait-action", action="store_true", help="let the policy also scale step length and cycle time"
     )
     p.add_argument("--terrain", default="flat", choices=["flat", "rough"])
+    p.add_argument(
+        "--robot", default="quadson", choices=list(ROBOT_NAMES), help="the robot (default: %(default)s)"
+    )
     p.add_argument(
         "--gait",
         default=None,
@@ -108,6 +113,7 @@ def main(argv=None) -> int:
                 ("--gait-action", args.gait_action),
                 ("--env-preset", args.env_preset != "seed"),
                 ("--terrain", args.terrain != "flat"),
+                ("--robot", args.robot != "quadson"),
                 ("--preset", args.preset is not None),
                 ("--run-dir", args.run_dir is not None),
             )
@@ -132,7 +138,9 @@ def main(argv=None) -> int:
             print("No GPU found: running the small 'cpu' preset (minutes). Use a GPU for the real job.")
         try:
             recipe = {"gait": args.gait, "gait_recipe": True} if args.gait else {}
-            env_cfg = env_config(terrain=args.terrain, **ENV_PRESETS[args.env_preset], **recipe)
+            env_cfg = env_config(
+                terrain=args.terrain, robot=args.robot, **ENV_PRESETS[args.env_preset], **recipe
+            )
             env_cfg.gait_action = args.gait_action
             env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
             ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]

@@ -1,4 +1,60 @@
 """One package per robot (the layout of mujoco_playground / mujoco_menagerie): constants, MJCF generator,
 gait and experiments of a robot live in its own folder (quadson/, caramel/); leg kinematics, gaits,
-swing curves, the stabilizer and the reward terms stay at the package top level. The environment
-(quadson_mjx.env) and training still run Quadson only."""
+swing curves, the stabilizer, the reward terms and the one environment (quadson_mjx.env) are shared.
+
+What the environment needs from a robot is a `Robot` (each folder's robot.py defines ROBOT): the model
+and the names in it, the home pose, the gait in the robot's own foot frames, and the mapping from foot
+targets to motor targets (the five-bar IK for Quadson, the serial-leg IK for Caramel). `get_robot(name)`
+imports only the robot asked for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+ROBOT_NAMES: tuple[str, ...] = ("quadson", "caramel")
+
+
+@dataclasses.dataclass(frozen=True)
+class Robot:
+    """A robot as the environment sees it. Foot frames ("gait frames") are the robot's own: Quadson's
+    shoulder frames (x along p1 -> p5, y up, z lateral), Caramel's body frame (x forward, y left, z up);
+    every (4, 3) foot array is in them, leg order `legs`."""
+
+    name: str
+    legs: tuple[str, ...]  # leg order of every per-leg array
+    load_model: Callable[[str], Any]  # scene ("flat" | "rough") -> mujoco.MjModel
+    model_xml_text: Callable[[str], str]  # scene -> robot and scene MJCF text (stored in logs)
+    motor_joints: tuple[str, ...]  # the 12 observed joints, legs x motors order
+    actuators: tuple[str, ...]  # the 12 actuators in the same order
+    root_body: str  # the free-floating base; its free joint comes first in qpos / qvel
+    home_keyframe: str  # keyframe with the standing qpos and ctrl
+    home_feet: np.ndarray  # (4, 3) foot targets of the home keyframe, gait frames [m]
+    gait_names: tuple[str, ...]
+    default_gait: str
+    gait_params: Callable  # (name, **overrides) -> quadson_mjx.gait.GaitParams
+    foot_targets: Callable  # (t (...) [s], command (..., 3), params) -> (..., 4, 3) gait frames [m]
+    motor_targets: Callable  # feet (..., 4, 3) -> (angles (..., 4, 3) clamped [rad], valid (..., 4))
+    # body kinematics for the roll / pitch stabilizer: feet (4, 3) of the level body, body roll and
+    # pitch (2,) [rad] -> the same ground points in the gait frames of the tilted body
+    tilt_feet: Callable
+    # closed chains: (model, site_xpos (..., nsite, 3)) -> (..., 4) gap of each leg's loop [m];
+    # None for a robot without loops (Caramel)
+    closure_residual: Callable | None
+    gait_action: bool  # the gait may be scaled per step by the policy (traced step length, cycle)
+    env_defaults: Mapping[str, Any]  # env config values of this robot, dotted keys (env_config)
+
+    def foot_geoms(self) -> tuple[str, ...]:
+        return tuple(f"{leg}_foot_collision" for leg in self.legs)
+
+
+def get_robot(name: str) -> Robot:
+    """The Robot of quadson_mjx.robots.<name>.robot. Raises ValueError for an unknown name."""
+    if name not in ROBOT_NAMES:
+        raise ValueError(f"unknown robot {name!r}; choose from {ROBOT_NAMES}")
+    return importlib.import_module(f"quadson_mjx.robots.{name}.robot").ROBOT

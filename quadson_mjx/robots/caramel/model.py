@@ -245,6 +245,13 @@ def load_model(scene: str = "flat") -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_path(str(MODEL_DIR / SCENES[scene]))
 
 
+def model_xml_text(scene: str = "flat") -> str:
+    """The robot and scene MJCF as text (to store beside checkpoints and logs)."""
+    if scene not in SCENES:
+        raise ValueError(f"unknown scene {scene!r}: expected one of {sorted(SCENES)}")
+    return (MODEL_DIR / _BODY_XML).read_text() + "\n" + (MODEL_DIR / SCENES[scene]).read_text()
+
+
 def name_id(model: mujoco.MjModel, objtype: mujoco.mjtObj, name: str) -> int:
     i = mujoco.mj_name2id(model, objtype, name)
     if i < 0:
