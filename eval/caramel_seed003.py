@@ -2,6 +2,7 @@
 
     python eval/caramel_seed003.py                       # 30 / 10 / 10 samples, as the paper
     python eval/caramel_seed003.py --samples-1 5 --samples-23 2 --json runs/caramel_seed003.json
+    python eval/caramel_seed003.py --run results/caramel/policy   # + rows of a trained policy
 
 Writes a JSON of the measured and published numbers and prints markdown tables (mean +- sample std).
 The experiments themselves are quadson_mjx.robots.caramel.experiments.
@@ -25,6 +26,10 @@ def _cell(pair, scale=1.0, digits=3) -> str:
     return f"{m * scale:.{digits}f} ± {s * scale:.{digits}f}"
 
 
+def _paper(row, key, scale, digits) -> str:
+    return _cell(row[key], scale, digits) if row else "—"
+
+
 def markdown(result: dict) -> str:
     """Markdown tables of a result dict (see main), measured next to published."""
     lines = ["Table I (single leg in the air, cycloid H 5 cm, T 0.5 s, 25 points, P_T = P_N = 1)", ""]
@@ -42,24 +47,25 @@ def markdown(result: dict) -> str:
         "| test | velocity [cm/s] sim | paper | Δroll [deg] sim | paper | Δpitch [deg] sim | paper | fell |"
     ]
     lines += ["|---|---|---|---|---|---|---|---|"]
-    for name, paper in E.PAPER_TABLE_2.items():
-        r = result["table_2"][name]
+    policy = result.get("policy") or {"table_2": {}, "table_3": {}}
+    for name, r in {**result["table_2"], **policy["table_2"]}.items():
+        paper = E.PAPER_TABLE_2.get(name)
         lines.append(
-            f"| {name} | {_cell(r['velocity_mps'], 100, 2)} | {_cell(paper['velocity_mps'], 100, 3)} "
-            f"| {_cell(r['roll_deg'], 1, 2)} | {_cell(paper['roll_deg'], 1, 2)} "
-            f"| {_cell(r['pitch_deg'], 1, 2)} | {_cell(paper['pitch_deg'], 1, 2)} | {r['fell']}/{r['n']} |"
+            f"| {name} | {_cell(r['velocity_mps'], 100, 2)} | {_paper(paper, 'velocity_mps', 100, 3)} "
+            f"| {_cell(r['roll_deg'], 1, 2)} | {_paper(paper, 'roll_deg', 1, 2)} "
+            f"| {_cell(r['pitch_deg'], 1, 2)} | {_paper(paper, 'pitch_deg', 1, 2)} | {r['fell']}/{r['n']} |"
         )
     lines += ["", "Table III (turn in place 0.25 rad/s, rough ground)", ""]
     lines += [
         "| test | yaw rate [rad/s] sim | paper | Δroll [deg] sim | paper | Δpitch [deg] sim | paper | fell |"
     ]
     lines += ["|---|---|---|---|---|---|---|---|"]
-    for name, paper in E.PAPER_TABLE_3.items():
-        r = result["table_3"][name]
+    for name, r in {**result["table_3"], **policy["table_3"]}.items():
+        paper = E.PAPER_TABLE_3.get(name)
         lines.append(
-            f"| {name} | {_cell(r['yaw_rate_radps'], 1, 3)} | {_cell(paper['yaw_rate_radps'], 1, 3)} "
-            f"| {_cell(r['roll_deg'], 1, 2)} | {_cell(paper['roll_deg'], 1, 2)} "
-            f"| {_cell(r['pitch_deg'], 1, 2)} | {_cell(paper['pitch_deg'], 1, 2)} | {r['fell']}/{r['n']} |"
+            f"| {name} | {_cell(r['yaw_rate_radps'], 1, 3)} | {_paper(paper, 'yaw_rate_radps', 1, 3)} "
+            f"| {_cell(r['roll_deg'], 1, 2)} | {_paper(paper, 'roll_deg', 1, 2)} "
+            f"| {_cell(r['pitch_deg'], 1, 2)} | {_paper(paper, 'pitch_deg', 1, 2)} | {r['fell']}/{r['n']} |"
         )
     return "\n".join(lines)
 
@@ -70,12 +76,21 @@ def main(argv=None) -> dict:
     ap.add_argument("--samples-23", type=int, default=10, help="samples per test of Tables II and III")
     ap.add_argument("--max-time-s", type=float, default=90.0, help="time limit of one walk [s]")
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
+    ap.add_argument("--run", type=Path, default=None, help="a Caramel training run: add its policy's rows")
     args = ap.parse_args(argv)
     t0 = time.time()
+    policy = None
+    if args.run is not None:
+        try:
+            policy = E.policy_driver(args.run)
+        except (ValueError, OSError) as e:
+            ap.error(f"--run {args.run}: {e}")
     result = {
         "table_1": E.table_1(args.samples_1),
         "table_2": E.table_2(args.samples_23, max_time_s=args.max_time_s),
         "table_3": E.table_3(args.samples_23, max_time_s=args.max_time_s),
+        "policy": E.policy_rows(policy, args.samples_23, max_time_s=args.max_time_s) if policy else None,
+        "run": str(args.run) if args.run else None,
         "paper": {"table_1": E.PAPER_TABLE_1, "table_2": E.PAPER_TABLE_2, "table_3": E.PAPER_TABLE_3},
         "command": "python eval/caramel_seed003.py " + " ".join(argv if argv is not None else sys.argv[1:]),
     }

@@ -5,6 +5,9 @@
     forward velocity and roll / pitch oscillation (max - min of the IMU), with and without the PID.
   * Table III (`walk_sample`, command (0, 0, 0.25), rough ground): turn in place, mean yaw rate and
     roll / pitch oscillation, with and without the PID.
+  * The same walks driven by a trained foot-offset policy (`policy_driver` of a training run on
+    `env_config(robot="caramel")`; `policy_rows`): the environment's gait, its offsets and IK, on the
+    same perturbed models, start points and metrics as the planner's rows.
 `table_1`, `table_2`, `table_3` run the samples and summarise them (mean and standard deviation);
 PAPER_TABLE_* hold the published numbers (seed 003, Tables I-III), converted to SI and degrees.
 
@@ -214,6 +217,7 @@ def walk_sample(
     scene: str = "flat",
     command=(0.05, 0.0, 0.0),
     pid: bool = False,
+    policy=None,
     seed: int = 0,
     distance_m: float = 1.5,
     turn_rad: float = 2.0 * math.pi,
@@ -228,6 +232,8 @@ def walk_sample(
 
     pid: seed 003's roll / pitch stabilizer (stabilizer.pid_step at 50 Hz on the IMU's roll and
     pitch; its output tilts the feet about the body centre before IK, gait.tilt_feet).
+    policy: None (seed 003's planner, trot_feet) or a `policy_driver`: every tick it maps the state,
+    tick and command to the 12 joint targets as the training environment does.
     What varies with `seed`: each servo's kp (`perturbed_model`), the initial joint angles (home +
     N(0, 0.5 deg)) and, on the rough
     scene, the start point, uniform in ROUGH_START_X x ROUGH_START_Y (on flat ground, in +-0.5 m).
@@ -237,6 +243,8 @@ def walk_sample(
     oscillation), time_s, fell (tilt over 45 deg or base below 0.08 m), invalid_ticks (ticks with a
     foot target out of reach or limits; the servos get the clipped angles).
     """
+    if pid and policy is not None:
+        raise ValueError("walk_sample drives the planner with the PID or the policy, not both")
     rng = np.random.default_rng(seed)
     model = perturbed_model(M.load_model(scene), rng)
     data = mujoco.MjData(model)
@@ -259,7 +267,7 @@ def walk_sample(
 
     n_sub = _steps_per_tick(model)
     n_ticks = round(max_time_s / C.TICK_S)
-    feet = G.trot_feet(n_ticks, command, height=height, p_t=p_t, p_n=p_n)
+    feet = G.trot_feet(n_ticks, command, height=height, p_t=p_t, p_n=p_n) if policy is None else None
     pid_state = stabilizer.pid_init()
     pid_step = _jitted_pid_step()
     start_pos = data.qpos[:2].copy()
@@ -281,12 +289,17 @@ def walk_sample(
             break
         if (turning and abs(yaw_turned) >= turn_rad) or (not turning and travel >= distance_m):
             break
-        u = np.zeros(2)
-        if pid:
-            pid_state, u = pid_step(pid_state, np.array([r, p]))
-        q, valid = G.stabilized_joint_targets(feet[k], np.asarray(u))
-        invalid += int(not bool(np.all(valid)))
-        data.ctrl[act] = np.asarray(q).ravel()
+        if policy is not None:
+            ctrl, n_invalid = policy(data.qpos, data.qvel, k, command)
+            invalid += int(n_invalid > 0)
+            data.ctrl[:] = ctrl
+        else:
+            u = np.zeros(2)
+            if pid:
+                pid_state, u = pid_step(pid_state, np.array([r, p]))
+            q, valid = G.stabilized_joint_targets(feet[k], np.asarray(u))
+            invalid += int(not bool(np.all(valid)))
+            data.ctrl[act] = np.asarray(q).ravel()
         for _ in range(n_sub):
             mujoco.mj_step(model, data)
     time_s = max(k, 1) * C.TICK_S
@@ -299,6 +312,68 @@ def walk_sample(
         "fell": fell,
         "invalid_ticks": invalid,
     }
+
+
+def policy_driver(run_dir, checkpoint=None):
+    """A training run's policy as walk_sample's `policy`: (qpos, qvel, tick k, command) -> (ctrl (nu,),
+    number of legs whose target was clamped). The observation, the gait at tick k (gait progress
+    k ctrl_dt / cycle, the start ramp), the offsets and the IK are the environment's own
+    (LocomotionEnv.observation and its motor targets), without sensor noise; the action is the
+    policy's mean. Raises ValueError for a run of another robot or another control period."""
+    from quadson_mjx import training
+    from quadson_mjx.config import apply_overrides
+    from quadson_mjx.env import LocomotionEnv
+    from quadson_mjx.env_config import with_added_keys
+
+    policy, env_cfg, _, _ = training.load_policy(run_dir, checkpoint)
+    env_cfg = with_added_keys(env_cfg)
+    if env_cfg.robot != "caramel" or abs(env_cfg.ctrl_dt - C.TICK_S) > 1e-12:
+        raise ValueError(
+            f"{run_dir}: a {env_cfg.robot} run at {env_cfg.ctrl_dt} s; need caramel at {C.TICK_S} s"
+        )
+    env = LocomotionEnv(apply_overrides(env_cfg, ["randomize=False"]))  # no sensor noise
+    cycle_s = float(env.gait_params.cycle_s)
+
+    @jax.jit
+    def step(qpos, qvel, tick, command):
+        time_s = tick * env.ctrl_dt
+        info = {
+            "gait_progress": jax.numpy.mod(time_s / cycle_s, 1.0),
+            "episode_time": time_s,
+            "command": command,
+        }
+        action = jax.numpy.clip(policy(env.observation(qpos, qvel, info), jax.random.PRNGKey(0))[0], -1, 1)
+        ctrl, n_invalid, _, _ = env._motor_targets(info, action)
+        return ctrl, n_invalid
+
+    def drive(qpos, qvel, tick, command):
+        ctrl, n_invalid = step(
+            np.asarray(qpos, np.float32), np.asarray(qvel, np.float32), tick, np.asarray(command, np.float32)
+        )
+        return np.asarray(ctrl, np.float64), int(n_invalid)
+
+    return drive
+
+
+POLICY_ROWS = {  # name -> (table, scene, command) of seed 003's walks, driven by a policy
+    "flat_policy": ("table_2", "flat", (0.05, 0.0, 0.0)),
+    "rough_policy": ("table_2", "rough", (0.05, 0.0, 0.0)),
+    "turn_rough_policy": ("table_3", "rough", (0.0, 0.0, 0.25)),
+}
+
+
+def policy_rows(policy, n_samples: int = 10, **kw) -> dict:
+    """Tables II and III's walks driven by `policy` (policy_driver), seeds 0..n_samples - 1 as the
+    planner's rows -> {"table_2": {"flat_policy", "rough_policy"}, "table_3": {"rough_policy"}}."""
+    out = {"table_2": {}, "table_3": {}}
+    for name, (table, scene, command) in POLICY_ROWS.items():
+        samples = [walk_sample(scene, command, policy=policy, seed=i, **kw) for i in range(n_samples)]
+        key = "velocity_mps" if table == "table_2" else "yaw_rate_radps"
+        row = _summary(samples, (key, "roll_deg", "pitch_deg", "time_s"))
+        row["fell"] = int(sum(s["fell"] for s in samples))
+        row["invalid_ticks"] = int(sum(s["invalid_ticks"] for s in samples))
+        out[table][name.replace("turn_", "")] = row
+    return out
 
 
 @functools.cache
