@@ -4,6 +4,7 @@
     python eval/gait.py --gait all               # walk, trot, pace, bound, gallop
     python eval/gait.py --gait walk --vx 0.05 --vy 0.02 --yaw-rate 0.1 --swing cycloid
     python eval/gait.py --gait trot_discontinuous --json runs/gait_eval.json
+    python eval/gait.py --robot caramel --scene rough --yaw-rate 0.25 --vx 0   # seed 003's trot on Caramel
 
 Each control step (50 Hz by default) the gait's foot targets go through the five-bar IK
 (quadson_mjx.gait.motor_targets) into the position-controlled motors; no feedback. The robot starts
@@ -14,6 +15,10 @@ mean forward speed (world x travel / time; the robot starts facing +x) against t
 roll/pitch oscillation as max - min and standard deviation [deg] (seed 003, Table II), and the mean
 pitch [deg] (negative: nose up). The default swing is the seed's Bezier (apex h / sqrt 3): with
 "bezier_apex" (the environment's) the open-loop trot falls nose-up at 1.6 s (models/quadson/README.md).
+
+--robot caramel runs seed 003's planner on Caramel instead (quadson_mjx.robots.caramel.experiments
+.walk_sample, the walk of its Tables II-III, for --duration-s after standing 1 s; --pid adds seed
+003's stabilizer): mean velocity along the start heading, yaw rate, Δroll and Δpitch [deg].
 """
 
 from __future__ import annotations
@@ -127,6 +132,45 @@ def _table(rows) -> str:
     return "\n".join(lines)
 
 
+def caramel_main(args, parser) -> int:
+    from quadson_mjx.robots.caramel import experiments as E
+    from quadson_mjx.robots.caramel import gait as CG
+
+    if args.gait not in ("trot", *CG.GAIT_NAMES) or args.swing not in (None, "cycloid"):
+        parser.error(
+            f"caramel runs {CG.GAIT_NAMES[0]} with the cycloid swing (got --gait {args.gait}, --swing {args.swing})"
+        )
+    if args.ctrl_dt != 0.02:
+        parser.error("caramel's planner runs at seed 003's 50 Hz tick (--ctrl-dt 0.02)")
+    command = (CG.SEED_SPEED if args.vx is None else args.vx, args.vy, args.yaw_rate)
+    r = E.walk_sample(
+        args.scene,
+        command,
+        pid=args.pid,
+        distance_m=float("inf"),
+        turn_rad=float("inf"),
+        max_time_s=args.duration_s,
+    )
+    row = {
+        "robot": "caramel",
+        "gait": CG.GAIT_NAMES[0],
+        "scene": args.scene,
+        "pid": args.pid,
+        "command": command,
+        **r,
+    }
+    print(
+        f"caramel {row['gait']} {args.scene}{' + PID' if args.pid else ''}, command {command}: "
+        f"{'FELL' if r['fell'] else 'up'} for {r['time_s']:.1f} s, velocity {100 * r['velocity_mps']:.2f} cm/s, "
+        f"yaw rate {r['yaw_rate_radps']:.3f} rad/s, Δroll {r['roll_deg']:.2f} deg, Δpitch {r['pitch_deg']:.2f} deg, "
+        f"{r['invalid_ticks']} ticks clamped"
+    )
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(row, indent=2, default=float))
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--gait", default="trot", choices=[*G.GAIT_NAMES, "all"])
@@ -139,7 +183,11 @@ def main(argv=None) -> int:
     p.add_argument("--ramp-s", type=float, default=1.0)
     p.add_argument("--scene", default="flat", choices=sorted(M.SCENES))
     p.add_argument("--json", default=None, help="write the results here")
+    p.add_argument("--robot", default="quadson", choices=["quadson", "caramel"])
+    p.add_argument("--pid", action="store_true", help="caramel: seed 003's roll/pitch stabilizer")
     args = p.parse_args(argv)
+    if args.robot == "caramel":
+        return caramel_main(args, p)
 
     rows = []
     for gait in FIVE if args.gait == "all" else (args.gait,):

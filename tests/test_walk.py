@@ -10,6 +10,7 @@ showed with its CoM at the body centre (constants.BASE_COM_X).
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
@@ -39,3 +40,15 @@ def test_gait_at_defaults_stays_up_and_walks_forward_for_10_s(eval_gait, gait, m
     assert r["mean_vx"] > min_speed_fraction * command, f"{gait}: {r['mean_vx']:.3f} of {command:.3f} m/s"
     assert r["mujoco_warnings"] == 0
     assert r["ik_invalid_fraction"] == 0.0
+
+
+def test_caramel_option_runs_seed_003s_planner(eval_gait, tmp_path):
+    """--robot caramel: the planner's walk of Tables II-III (experiments.walk_sample) for 4 s; it walks
+    forward (Table II: 3.3 cm/s flat) and a five-bar gait is a usage error."""
+    out = tmp_path / "caramel.json"
+    assert eval_gait.main(["--robot", "caramel", "--duration-s", "4", "--json", str(out)]) == 0
+    row = json.loads(out.read_text())
+    assert row["robot"] == "caramel" and not row["fell"] and 0.01 < row["velocity_mps"] < 0.05
+    with pytest.raises(SystemExit) as e:
+        eval_gait.main(["--robot", "caramel", "--gait", "walk"])
+    assert e.value.code == 2
