@@ -259,7 +259,6 @@ def env_config(
         if leaf not in node:
             raise KeyError(f"{robot}'s env_defaults name env.{dotted}, which the config does not have")
         node[leaf] = ml_collections.ConfigDict(value) if isinstance(value, dict) else value
-    cfg.gait = gait
     cfg.lock()
     return cfg
 

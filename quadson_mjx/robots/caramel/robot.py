@@ -29,8 +29,7 @@ ROBOT = Robot(
     closure_residual=None,
     gait_action=False,  # the trot's tick table needs a fixed phase length
     env_defaults={
-        "gait": "trot_discontinuous",
-        "swing": "cycloid",
+        "swing": "cycloid",  # seed 003's (Quadson's default is the seed 000 Bezier)
         # offsets up to +-3 cm: a quarter of a 12 cm link (Quadson's 5 cm on 20 cm legs)
         "action_scale_m": 0.03,
         "reward.height_target": model.HOME_BASE_HEIGHT,  # 0.18 m, base origin at home
