@@ -29,6 +29,15 @@ _leg_ik = jax.jit(fivebar.leg_ik)
 _motor_targets = jax.jit(gait.motor_targets)
 
 
+@pytest.fixture
+def float64_traces():
+    """Clears JAX's caches before a jax.enable_x64 block: a float32 trace of the gait made earlier in
+    the session (tests/test_gait.py, tests/test_caramel_env.py) is otherwise reused inside the x64
+    trace (a stablehlo f64 x f32 type error, or float32-rounded references). Regression for the
+    suite failing when another module ran the gait before this one."""
+    jax.clear_caches()
+
+
 def test_swing_shape_names_are_the_jax_ones():
     assert gait_np.SWING_SHAPES == swing.SWING_SHAPES
     assert gait_np.APEX_SCALE == swing.APEX_SCALE
@@ -36,7 +45,7 @@ def test_swing_shape_names_are_the_jax_ones():
 
 @pytest.mark.parametrize("shape", swing.SWING_SHAPES)
 @pytest.mark.parametrize("name", gait.GAIT_NAMES)
-def test_numpy_foot_targets_equal_the_jax_gait(name, shape):
+def test_numpy_foot_targets_equal_the_jax_gait(name, shape, float64_traces):
     rng = np.random.default_rng(0)
     t = rng.uniform(-1.0, 5.0, 256)  # s, several cycles of every gait, negative times included
     cmd = rng.uniform([-0.3, -0.2, -0.5], [0.45, 0.2, 0.5], (256, 3))
@@ -55,7 +64,7 @@ def test_numpy_foot_targets_equal_the_jax_gait(name, shape):
     )
 
 
-def test_numpy_ik_equals_the_jax_ik_with_its_clamp():
+def test_numpy_ik_equals_the_jax_ik_with_its_clamp(float64_traces):
     # targets over and beyond the workspace: both valid and every kind of invalid
     rng = np.random.default_rng(1)
     feet = rng.uniform([-0.12, -0.30, -0.12], [0.26, -0.02, 0.12], (4096, 4, 3))
