@@ -1,4 +1,4 @@
-"""Quadson's MJX physics against MuJoCo Playground's feet-only Go1, in one run, per physics setting.
+"""Our robots' MJX physics against MuJoCo Playground's feet-only Go1, in one run, per physics setting.
 
     python benchmarks/physics_vs_go1.py --go1-scene PATH/scene_mjx_feetonly_flat_terrain.xml \
         --envs 8192 32768 --out benchmarks/results_physics_vs_go1_h100.json
@@ -10,11 +10,13 @@ the same protocol: N worlds, 5 physics steps of 4 ms per 0.02 s control step, po
 home + N(0, 0.1 rad) drawn every control step; one jitted lax.scan over --steps control steps,
 compiled once, best of --repeats timed runs.
 
-Each Quadson setting (a change of the environment's model, see SETTINGS) is measured twice:
+Each setting (a change of the environment's model, see SETTINGS) of each robot (--robots: quadson,
+caramel) is measured twice:
 physics only as above, and the full environment (gait + IK + physics + reward + observation,
 `jit(vmap(env.step))`) under the gait with actions drawn uniform in [-0.2, 0.2] (foot offsets of at
 most 1 cm), which also reports the five-bar closure residual (max over worlds and control steps
-of the distance between each leg's two p3 sites) and the share of worlds that fell. Prints a
+of the distance between each leg's two p3 sites; 0 for Caramel, which has no loops) and the share
+of worlds that fell. Prints a
 markdown table; the JSON is rewritten after every measurement.
 """
 
@@ -37,7 +39,7 @@ from mujoco import mjx  # noqa: E402
 
 from quadson_mjx.env import LocomotionEnv  # noqa: E402
 from quadson_mjx.env_config import env_config  # noqa: E402
-from quadson_mjx.robots.quadson import model as qmodel  # noqa: E402
+from quadson_mjx.robots import ROBOT_NAMES  # noqa: E402
 
 NOISE_RAD = 0.1
 ACTION_RANGE = 0.2
@@ -107,7 +109,7 @@ def physics_only(m: mujoco.MjModel, qpos0, ctrl0, n_envs: int, steps: int, repea
 
 def env_under_gait(env: LocomotionEnv, n_envs: int, steps: int, repeats: int) -> dict:
     """Env steps/s, closure residual [m] and fallen share under the gait with small offsets."""
-    ids = qmodel.model_ids(env.mj_model)
+    closure = env.robot.closure_residual
     step = jax.vmap(env.step)
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n_envs))
 
@@ -117,7 +119,10 @@ def env_under_gait(env: LocomotionEnv, n_envs: int, steps: int, repeats: int) ->
             s, res, fell = carry
             a = jax.random.uniform(k, (n_envs, env.action_size), minval=-ACTION_RANGE, maxval=ACTION_RANGE)
             s = step(s, a)
-            r = jax.vmap(lambda x: jnp.max(qmodel.closure_residual_mjx(x, ids)))(s.pipeline_state.site_xpos)
+            if closure is None:
+                r = jnp.zeros(n_envs)
+            else:
+                r = jax.vmap(lambda x: jnp.max(closure(env.mj_model, x)))(s.pipeline_state.site_xpos)
             return (s, jnp.maximum(res, r), fell | (s.done > 0)), None
 
         init = (state, jnp.zeros(n_envs), jnp.zeros(n_envs, bool))
@@ -143,6 +148,7 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    p.add_argument("--robots", nargs="+", default=["quadson"], choices=list(ROBOT_NAMES))
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     meta = {
@@ -178,18 +184,20 @@ def main(argv=None):
                         **out,
                     }
                 )
-    for name in args.settings:
-        cfg = env_config()
-        for key, value in SETTINGS[name].items():
-            cfg[key] = value
-        env = LocomotionEnv(cfg)
-        m = env.mj_model
-        dx = mjx.make_data(env.sys)
-        for n in args.envs:
-            row = {"robot": "quadson", "setting": name, "envs": n, "nefc": int(dx._impl.efc_J.shape[0])}
-            row.update(physics_only(m, qmodel.home_qpos(m), qmodel.home_ctrl(m), n, args.steps, args.repeats))
-            row.update(env_under_gait(env, n, args.steps, args.repeats))
-            record(row)
+    for robot in args.robots:
+        for name in args.settings:
+            cfg = env_config(robot=robot)
+            for key, value in SETTINGS[name].items():
+                cfg[key] = value
+            env = LocomotionEnv(cfg)
+            m = env.mj_model
+            home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
+            dx = mjx.make_data(env.sys)
+            for n in args.envs:
+                row = {"robot": robot, "setting": name, "envs": n, "nefc": int(dx._impl.efc_J.shape[0])}
+                row.update(physics_only(m, m.key_qpos[home], m.key_ctrl[home], n, args.steps, args.repeats))
+                row.update(env_under_gait(env, n, args.steps, args.repeats))
+                record(row)
 
     anchor = {
         r["envs"]: r["physics_steps_per_s"]
