@@ -40,7 +40,9 @@ def evaluations(run_dir: Path) -> list[dict]:
                     "step": msg.get("progress", {}).get("step"),
                     "speed": ev.get("mean_forward_speed"),
                     "reward": ev.get("episode_reward"),
-                    "sps": msg.get("progress", {}).get("env_steps_per_s"),
+                    "sps": msg.get("progress", {}).get("env_steps_per_s"),  # wall clock, evaluations included
+                    "train_sps": msg.get("training", {}).get("sps"),  # brax's: the training epoch alone
+                    "eval_s": ev.get("epoch_eval_time"),  # this evaluation's wall time [s]
                 }
             )
     return out
