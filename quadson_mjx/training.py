@@ -51,8 +51,8 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
     base = {
         "num_timesteps": 80_000_000,
         # An evaluation (and checkpoint) every 16M steps: each one runs 128 episodes of 938 sequential
-        # steps, 2.74 s on one H100, while 16M training steps take 21.5 s (748k steps/s); 11
-        # evaluations spent 27 s of a 248 s main job (benchmarks/results_time_to_policy_h100_evals6.json)
+        # steps, 2.74 s on one H100, while 16M training steps take 21.5 s (748k steps/s); with 11,
+        # the 10 after the first spent 27 s of a 248 s main job (benchmarks/results_time_to_policy_h100_evals6.json)
         "num_evals": 6,
         "num_envs": 8192,
         "num_eval_envs": 128,
