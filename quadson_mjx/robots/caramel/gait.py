@@ -180,7 +180,7 @@ def _rot_z_jnp(theta: jax.Array) -> jax.Array:
 def foot_targets(t: jax.Array, command: jax.Array, params: base_gait.GaitParams) -> jax.Array:
     """The steady-state discontinuous trot at gait time t, in JAX.
 
-    t: (...) gait time [s], held at the last 20 ms tick (round(t / tick)); command: (..., 3) or (3,)
+    t: (...) gait time [s], rounded to the nearest 20 ms tick (round(t / tick)); command: (..., 3) or (3,)
     (vx, vy [m/s], yaw_rate [rad/s]) averaged over a cycle; params: gait_params() with concrete
     cycle_s, p_t, p_n (the tick table is built in numpy) -> (..., 4, 3) feet in the body frame [m].
     Equals trot_feet tick for tick from the second phase on (tests/test_caramel_env.py).
