@@ -55,6 +55,27 @@ def png_gray8(img: np.ndarray) -> bytes:
     )
 
 
+def robot_tail(motors: str, imu_site: str, sensors: str, key_name: str, key_qpos, key_ctrl) -> str:
+    """The end of a robot file, the same for every robot: the actuator block (motors: its lines), the
+    IMU sensors at imu_site followed by `sensors` (lines), the home keyframe and </mujoco>."""
+    return f"""\
+  <actuator>
+{motors}  </actuator>
+
+  <sensor>
+    <framequat name="imu_quat" objtype="site" objname="{imu_site}"/>
+    <gyro name="imu_gyro" site="{imu_site}"/>
+    <accelerometer name="imu_acc" site="{imu_site}"/>
+    <velocimeter name="imu_vel" site="{imu_site}"/>
+{sensors}  </sensor>
+
+  <keyframe>
+    <key name="{key_name}" qpos="{vec(key_qpos)}" ctrl="{vec(key_ctrl)}"/>
+  </keyframe>
+</mujoco>
+"""
+
+
 def scene(header: str, name: str, body_xml: str, center: str, extent: str, floor_contact, hfield=None) -> str:
     """Text of a scene file: the robot's body_xml included over a flat floor, or over a height field.
 

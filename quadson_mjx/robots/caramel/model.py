@@ -177,21 +177,7 @@ def robot_xml(floating: bool = True) -> str:
 {legs}    </body>
   </worldbody>
 
-  <actuator>
-{motors}  </actuator>
-
-  <sensor>
-    <framequat name="imu_quat" objtype="site" objname="{C.IMU_SITE}"/>
-    <gyro name="imu_gyro" site="{C.IMU_SITE}"/>
-    <accelerometer name="imu_acc" site="{C.IMU_SITE}"/>
-    <velocimeter name="imu_vel" site="{C.IMU_SITE}"/>
-{sensors}  </sensor>
-
-  <keyframe>
-    <key name="{C.HOME_KEYFRAME}" qpos="{vec(key_qpos)}" ctrl="{vec(q)}"/>
-  </keyframe>
-</mujoco>
-"""
+{mjcf.robot_tail(motors, C.IMU_SITE, sensors, C.HOME_KEYFRAME, key_qpos, q)}"""
 
 
 _FLOOR_CONTACT = (C.GROUND_FRICTION, (C.CONTACT_TIMECONST, C.CONTACT_DAMPING_RATIO), C.CONTACT_CONDIM)
