@@ -30,6 +30,21 @@ def _paper(row, key, scale, digits) -> str:
     return _cell(row[key], scale, digits) if row else "—"
 
 
+def _walk_table(label: str, speed, rows: dict, policy_rows: dict, paper_rows: dict) -> list[str]:
+    """Lines of Table II or III: speed = (key, scale, digits of ours, digits of the paper's)."""
+    key, scale, digits, paper_digits = speed
+    lines = [f"| test | {label} sim | paper | Δroll [deg] sim | paper | Δpitch [deg] sim | paper | fell |"]
+    lines += ["|---|---|---|---|---|---|---|---|"]
+    for name, r in {**rows, **policy_rows}.items():
+        paper = paper_rows.get(name)
+        lines.append(
+            f"| {name} | {_cell(r[key], scale, digits)} | {_paper(paper, key, scale, paper_digits)} "
+            f"| {_cell(r['roll_deg'], 1, 2)} | {_paper(paper, 'roll_deg', 1, 2)} "
+            f"| {_cell(r['pitch_deg'], 1, 2)} | {_paper(paper, 'pitch_deg', 1, 2)} | {r['fell']}/{r['n']} |"
+        )
+    return lines
+
+
 def markdown(result: dict) -> str:
     """Markdown tables of a result dict (see main), measured next to published."""
     lines = ["Table I (single leg in the air, cycloid H 5 cm, T 0.5 s, 25 points, P_T = P_N = 1)", ""]
@@ -42,31 +57,15 @@ def markdown(result: dict) -> str:
         for test in ("test1", "test2"):
             cells += [_cell(t1[test][key], sc, dg), _cell(E.PAPER_TABLE_1[test][key], sc, dg)]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    lines += ["", "Table II (trot forward 0.05 m/s; H 5 cm, T 0.5 s, P_T 0.66, P_N 0.33)", ""]
-    lines += [
-        "| test | velocity [cm/s] sim | paper | Δroll [deg] sim | paper | Δpitch [deg] sim | paper | fell |"
-    ]
-    lines += ["|---|---|---|---|---|---|---|---|"]
     policy = result.get("policy") or {"table_2": {}, "table_3": {}}
-    for name, r in {**result["table_2"], **policy["table_2"]}.items():
-        paper = E.PAPER_TABLE_2.get(name)
-        lines.append(
-            f"| {name} | {_cell(r['velocity_mps'], 100, 2)} | {_paper(paper, 'velocity_mps', 100, 3)} "
-            f"| {_cell(r['roll_deg'], 1, 2)} | {_paper(paper, 'roll_deg', 1, 2)} "
-            f"| {_cell(r['pitch_deg'], 1, 2)} | {_paper(paper, 'pitch_deg', 1, 2)} | {r['fell']}/{r['n']} |"
-        )
+    lines += ["", "Table II (trot forward 0.05 m/s; H 5 cm, T 0.5 s, P_T 0.66, P_N 0.33)", ""]
+    lines += _walk_table(
+        "velocity [cm/s]", ("velocity_mps", 100, 2, 3), result["table_2"], policy["table_2"], E.PAPER_TABLE_2
+    )
     lines += ["", "Table III (turn in place 0.25 rad/s, rough ground)", ""]
-    lines += [
-        "| test | yaw rate [rad/s] sim | paper | Δroll [deg] sim | paper | Δpitch [deg] sim | paper | fell |"
-    ]
-    lines += ["|---|---|---|---|---|---|---|---|"]
-    for name, r in {**result["table_3"], **policy["table_3"]}.items():
-        paper = E.PAPER_TABLE_3.get(name)
-        lines.append(
-            f"| {name} | {_cell(r['yaw_rate_radps'], 1, 3)} | {_paper(paper, 'yaw_rate_radps', 1, 3)} "
-            f"| {_cell(r['roll_deg'], 1, 2)} | {_paper(paper, 'roll_deg', 1, 2)} "
-            f"| {_cell(r['pitch_deg'], 1, 2)} | {_paper(paper, 'pitch_deg', 1, 2)} | {r['fell']}/{r['n']} |"
-        )
+    lines += _walk_table(
+        "yaw rate [rad/s]", ("yaw_rate_radps", 1, 3, 3), result["table_3"], policy["table_3"], E.PAPER_TABLE_3
+    )
     return "\n".join(lines)
 
 

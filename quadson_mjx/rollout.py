@@ -31,8 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from quadson_mjx import gait
 from quadson_mjx.env import quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.robots import get_robot
 from quadson_mjx.robots.quadson import constants as C
 from quadson_mjx.stabilizer import SEED_003_GAINS, PidGains, pid_init, pid_step
 
@@ -66,12 +66,8 @@ def pid_action(gait_targets, u_roll_pitch, action_scale_m, tilt_feet=None):
     - targets, clipped to +-action_scale_m and divided by it (so in [-1, 1]).
     """
     if tilt_feet is None:
-        zero = jnp.zeros((), gait_targets.dtype)
-        pose = jnp.stack([zero, zero, zero, u_roll_pitch[0], u_roll_pitch[1], zero])
-        tilted = gait.apply_body_offset(gait_targets, pose)
-    else:
-        tilted = tilt_feet(gait_targets, u_roll_pitch)
-    offsets = tilted - gait_targets
+        tilt_feet = get_robot("quadson").tilt_feet
+    offsets = tilt_feet(gait_targets, u_roll_pitch) - gait_targets
     return (jnp.clip(offsets, -action_scale_m, action_scale_m) / action_scale_m).reshape(12)
 
 

@@ -24,8 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from quadson_mjx import body, serial, swing
 from quadson_mjx import gait as base_gait
-from quadson_mjx import serial, swing
 from quadson_mjx.robots.caramel import constants as C
 
 PHASES_PER_CYCLE = 4  # swing A, shift, swing B, shift
@@ -99,16 +99,9 @@ def trot_feet(
 def tilt_feet(feet: jax.Array, roll_pitch: jax.Array) -> jax.Array:
     """Body kinematics: feet (..., 4, 3) [m] for a level body -> the same ground points seen from a
     body rotated by roll_pitch (..., 2) [rad] about its centre (R = Ry(pitch) Rx(roll)): R^T f."""
-    r, p = roll_pitch[..., 0], roll_pitch[..., 1]
-    cr, sr, cp, sp = jnp.cos(r), jnp.sin(r), jnp.cos(p), jnp.sin(p)
-    zero, one = jnp.zeros_like(r), jnp.ones_like(r)
-    rx = jnp.stack(
-        [jnp.stack([one, zero, zero], -1), jnp.stack([zero, cr, -sr], -1), jnp.stack([zero, sr, cr], -1)], -2
-    )
-    ry = jnp.stack(
-        [jnp.stack([cp, zero, sp], -1), jnp.stack([zero, one, zero], -1), jnp.stack([-sp, zero, cp], -1)], -2
-    )
-    rot = ry @ rx  # (..., 3, 3)
+    roll_pitch = jnp.asarray(roll_pitch)
+    rpy = jnp.concatenate([roll_pitch, jnp.zeros_like(roll_pitch[..., :1])], axis=-1)
+    rot = body.body_rotation(rpy)  # (..., 3, 3) Rz(0) Ry Rx
     return jnp.einsum("...ji,...lj->...li", rot, feet)  # R^T f for each foot
 
 
@@ -171,10 +164,9 @@ def gait_params(name: str = "trot_discontinuous", **overrides) -> base_gait.Gait
 
 
 def _rot_z_jnp(theta: jax.Array) -> jax.Array:
-    """theta (...) -> (..., 3, 3) rotation about z."""
-    c, s = jnp.cos(theta), jnp.sin(theta)
-    z, o = jnp.zeros_like(theta), jnp.ones_like(theta)
-    return jnp.stack([jnp.stack([c, -s, z], -1), jnp.stack([s, c, z], -1), jnp.stack([z, z, o], -1)], -2)
+    """theta (...) -> (..., 3, 3) rotation about z (body.body_rotation of yaw theta)."""
+    zero = jnp.zeros_like(theta)
+    return body.body_rotation(jnp.stack([zero, zero, theta], axis=-1))
 
 
 def foot_targets(t: jax.Array, command: jax.Array, params: base_gait.GaitParams) -> jax.Array:
