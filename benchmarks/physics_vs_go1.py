@@ -51,7 +51,20 @@ SETTINGS: dict[str, dict] = {
     "feet_only_nolimit": {"base_terrain_contact": False, "joint_limits": False},
     "feet_only_elliptic": {"base_terrain_contact": False, "cone": "elliptic"},
     "feet_only_nolimit_elliptic": {"base_terrain_contact": False, "joint_limits": False, "cone": "elliptic"},
+    "feet_only_nolimit_cg": {"base_terrain_contact": False, "joint_limits": False, "solver": "cg"},
+    "feet_only_nolimit_sparse": {"base_terrain_contact": False, "joint_limits": False, "jacobian": "sparse"},
+    "feet_only_nolimit_cg_sparse": {
+        "base_terrain_contact": False,
+        "joint_limits": False,
+        "solver": "cg",
+        "jacobian": "sparse",
+    },
 }
+
+# Go1 rows: its sensors read after every control step (as Playground's env reads them), computed but
+# never read (the protocol of this script's earlier runs: only qpos leaves the jitted rollout, and XLA
+# drops the sensor work nothing reads), or switched off.
+GO1_SENSORS = ("read", "unread", "off")
 
 
 def _best_time(fn, args, repeats: int) -> tuple[float, float]:
@@ -78,8 +91,14 @@ def load_go1(scene: str) -> mujoco.MjModel:
     return spec.compile()
 
 
-def physics_only(m: mujoco.MjModel, qpos0, ctrl0, n_envs: int, steps: int, repeats: int) -> dict:
-    """Control steps/s of bare MJX stepping with noisy position targets around ctrl0."""
+def physics_only(
+    m: mujoco.MjModel, qpos0, ctrl0, n_envs: int, steps: int, repeats: int, read_sensors: bool = True
+) -> dict:
+    """Control steps/s of bare MJX stepping with noisy position targets around ctrl0.
+
+    read_sensors: the rollout returns the sensor values of every control step (their sum), so they
+    are computed as an env that reads them would; False returns only the final qpos, and XLA then
+    drops the sensors' work (the earlier protocol)."""
     mx = mjx.put_model(m)
     n_sub = round(0.02 / m.opt.timestep)
     ctrl0 = jnp.asarray(ctrl0)
@@ -97,10 +116,10 @@ def physics_only(m: mujoco.MjModel, qpos0, ctrl0, n_envs: int, steps: int, repea
                 return jax.vmap(mjx.step, in_axes=(None, 0))(mx, d), None
 
             d, _ = jax.lax.scan(sub, d, None, length=n_sub)
-            return d, None
+            return d, jnp.sum(d.sensordata) if read_sensors else None
 
-        data, _ = jax.lax.scan(ctrl_step, data, jax.random.split(key, steps))
-        return data.qpos
+        data, sensed = jax.lax.scan(ctrl_step, data, jax.random.split(key, steps))
+        return (data.qpos, sensed) if read_sensors else data.qpos
 
     data = jax.jit(jax.vmap(one_world))(jnp.arange(n_envs))
     best, first = _best_time(rollout, (data, jax.random.PRNGKey(1)), repeats)
@@ -143,7 +162,13 @@ def env_under_gait(env: LocomotionEnv, n_envs: int, steps: int, repeats: int) ->
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--go1-scene", default=None, help="Playground's scene_mjx_feetonly_flat_terrain.xml")
-    p.add_argument("--go1-no-sensors", action="store_true", help="also measure Go1 with its sensors off")
+    p.add_argument(
+        "--go1-sensors",
+        nargs="+",
+        default=["read"],
+        choices=GO1_SENSORS,
+        help="Go1 rows: sensors read every control step, computed but unread (dropped by XLA), or off",
+    )
     p.add_argument("--envs", type=int, nargs="+", default=[8192, 32768])
     p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
     p.add_argument("--repeats", type=int, default=2)
@@ -170,20 +195,15 @@ def main(argv=None):
     if args.go1_scene:
         go1 = load_go1(args.go1_scene)
         key = mujoco.mj_name2id(go1, mujoco.mjtObj.mjOBJ_KEY, "home")
-        for sensors in (True, False) if args.go1_no_sensors else (True,):
+        for sensors in args.go1_sensors:
             m = load_go1(args.go1_scene)
-            if not sensors:
+            if sensors == "off":
                 m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
             for n in args.envs:
-                out = physics_only(m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats)
-                record(
-                    {
-                        "robot": "go1_feetonly",
-                        "setting": "sensors" if sensors else "no_sensors",
-                        "envs": n,
-                        **out,
-                    }
+                out = physics_only(
+                    m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats, sensors == "read"
                 )
+                record({"robot": "go1_feetonly", "setting": f"sensors_{sensors}", "envs": n, **out})
     for robot in args.robots:
         for name in args.settings:
             cfg = env_config(robot=robot)
@@ -202,9 +222,10 @@ def main(argv=None):
     anchor = {
         r["envs"]: r["physics_steps_per_s"]
         for r in rows
-        if r["robot"] == "go1_feetonly" and r["setting"] == "sensors"
+        if r["robot"] == "go1_feetonly" and r["setting"] == f"sensors_{args.go1_sensors[0]}"
     }
     print(f"\ndevice: {meta['device']}; {args.steps} control steps of 0.02 s (5 physics steps each)")
+    print(f"vs Go1: against Go1 with sensors {args.go1_sensors[0]}")
     print(
         "| robot | setting | envs | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
     )

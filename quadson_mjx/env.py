@@ -33,7 +33,15 @@ from mujoco import mjx
 
 from quadson_mjx import gait, rewards, terrain
 from quadson_mjx.config import freeze
-from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_added_keys
+from quadson_mjx.env_config import (
+    CONES,
+    JACOBIANS,
+    SOLVERS,
+    check_env_config,
+    env_config,
+    env_gait,
+    with_added_keys,
+)
 from quadson_mjx.robots import get_robot
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no state of either robot is this fast; treat it as a blown-up solve
@@ -122,15 +130,10 @@ class LocomotionEnv(Env):
             self._mj_model.geom_conaffinity[base_geom] = 0
         if not cfg.joint_limits:
             self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
-        cones = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
-        cone = cfg.cone
-        if cone not in cones:
-            raise ValueError(f"env.cone is {cone!r}; choose from {sorted(cones)}")
-        self._mj_model.opt.cone = cones[cone]
-        impl = cfg.impl
-        if impl not in ("jax", "warp"):
-            raise ValueError(f"env.impl is {impl!r}; choose 'jax' or 'warp' (warp needs warp-lang)")
-        self.sys = mjx.put_model(self._mj_model, impl=impl)
+        self._mj_model.opt.cone = CONES[cfg.cone]
+        self._mj_model.opt.solver = SOLVERS[cfg.solver]
+        self._mj_model.opt.jacobian = JACOBIANS[cfg.jacobian]
+        self.sys = mjx.put_model(self._mj_model, impl=cfg.impl)
         self._field = terrain.heightfield(self._mj_model)
         base_geom = mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
         if not np.allclose(self._mj_model.geom_quat[base_geom], (1, 0, 0, 0)):

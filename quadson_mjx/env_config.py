@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import ml_collections
+import mujoco
 
 from quadson_mjx.gait import GaitParams
 from quadson_mjx.robots import ROBOT_NAMES, get_robot
@@ -92,6 +93,8 @@ ENV_KEYS_ADDED = {
     "joint_limits": True,
     "cone": "pyramidal",
     "impl": "jax",
+    "solver": "newton",
+    "jacobian": "auto",
     "command_resample_s": (0.0, 0.0),
     "command_zero_prob": 0.0,
     "termination.base_below_terrain": False,
@@ -183,6 +186,13 @@ def env_config(
             # Friction cone of the contacts: "pyramidal" (MuJoCo's default, 4 rows per condim-3
             # contact) or "elliptic" (3 rows).
             "cone": "pyramidal",
+            # Constraint solver: "newton" (MuJoCo's default: one Hessian Cholesky per iteration) or
+            # "cg" (conjugate gradient preconditioned by the mass matrix, no Hessian), both with the
+            # model's iterations (1) and line-search iterations (5).
+            "solver": "newton",
+            # Mass-matrix storage in MJX: "auto" (dense below 60 dofs on a GPU), "dense" or "sparse"
+            # (factored level by level along the kinematic tree instead of by a batched Cholesky).
+            "jacobian": "auto",
             # MJX implementation: "jax" (this project's measured path) or "warp" (needs warp-lang).
             "impl": "jax",
             # 50 Hz control: the control rate of seed 003's gait planner and of MJX locomotion
@@ -297,6 +307,12 @@ def _walk(cfg, prefix: str = ""):
             yield f"{prefix}{k}", v
 
 
+# MuJoCo option values of the env's physics keys
+CONES = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
+SOLVERS = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}
+JACOBIANS = {"auto": mujoco.mjtJacobian.mjJAC_AUTO, "dense": mujoco.mjtJacobian.mjJAC_DENSE, "sparse": mujoco.mjtJacobian.mjJAC_SPARSE}  # fmt: skip
+
+
 def check_env_config(cfg) -> None:
     """Raises ValueError naming the key (as `env.KEY`) for a value the environment would misread.
 
@@ -324,6 +340,14 @@ def check_env_config(cfg) -> None:
         raise ValueError(f"env.gait is {cfg.gait!r}; {robot} has {list(spec.gait_names)}")
     if cfg.gait_action and not spec.gait_action:
         raise ValueError(f"env.gait_action: {robot}'s gait cannot be scaled by the policy")
+    for key, names in (
+        ("cone", CONES),
+        ("solver", SOLVERS),
+        ("jacobian", JACOBIANS),
+        ("impl", ("jax", "warp")),
+    ):
+        if cfg[key] not in names:
+            raise ValueError(f"env.{key} is {cfg[key]!r}; choose from {list(names)}")
     if cfg.swing not in SWING_SHAPES:
         raise ValueError(f"env.swing is {cfg.swing!r}; choose from {list(SWING_SHAPES)}")
     positive = lambda v: v > 0  # noqa: E731

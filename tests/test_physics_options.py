@@ -1,5 +1,6 @@
-"""The environment's physics options (env_config keys base_terrain_contact, joint_limits, cone, impl):
-the constraint rows MJX allocates, counted by hand, and errors that name a bad value."""
+"""The environment's physics options (env_config keys base_terrain_contact, joint_limits, cone, solver,
+jacobian, impl): the constraint rows MJX allocates, counted by hand, the solver and mass-matrix
+storage the model gets, and errors that name a bad value."""
 
 import mujoco
 import pytest
@@ -35,7 +36,26 @@ def test_constraint_rows_of_each_physics_option(overrides, rows):
     assert disabled == (overrides.get("joint_limits") is False)
 
 
-@pytest.mark.parametrize(("key", "value"), [("cone", "round"), ("impl", "cuda")])
+@pytest.mark.parametrize(
+    ("solver", "jacobian", "mj_solver", "sparse"),
+    [
+        ("newton", "auto", mujoco.mjtSolver.mjSOL_NEWTON, False),  # auto: dense below 60 dofs
+        ("cg", "dense", mujoco.mjtSolver.mjSOL_CG, False),
+        ("newton", "sparse", mujoco.mjtSolver.mjSOL_NEWTON, True),
+    ],
+)
+def test_solver_and_jacobian_reach_the_mjx_model(solver, jacobian, mj_solver, sparse):
+    _, env = _rows(solver=solver, jacobian=jacobian)
+    assert env.mj_model.opt.solver == mj_solver and env.sys.opt.solver == mj_solver
+    nv = env.mj_model.nv
+    # MJX keeps the mass matrix as nv x nv when dense, as MuJoCo's nM sparse entries when sparse
+    m = mjx.make_data(env.sys)._impl.M
+    assert m.shape == ((env.mj_model.nM,) if sparse else (nv, nv))
+
+
+@pytest.mark.parametrize(
+    ("key", "value"), [("cone", "round"), ("impl", "cuda"), ("solver", "pgs"), ("jacobian", "banded")]
+)
 def test_bad_physics_option_names_the_key(key, value):
     cfg = apply_overrides(env_config(), [f"{key}={value}"])
     with pytest.raises(ValueError, match=f"env.{key}"):
