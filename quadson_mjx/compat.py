@@ -7,16 +7,12 @@ works around, measured, and the upstream issue where one exists, so it can be de
 * `brax_training_state`: brax PPO's whole training state (optimiser moments, step count, RNG,
   environment states) saved and restored at evaluations; brax's own checkpoints keep only the
   parameters, so a resumed run restarts Adam's moments (google/brax issue #655).
-* `brax_first_evaluation_in_thread`: brax PPO compiles its evaluator and then its training epoch,
-  one after the other, before training starts; this compiles and runs the first evaluation in a
-  thread while the main thread compiles the epoch (not a bug of brax: its loop is sequential).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import threading
 from collections.abc import Callable
 
 import jax
@@ -272,91 +268,3 @@ def brax_training_state(state: BraxTrainingState, eval_offset: int = 0):
         yield state
     finally:
         jax.pmap, acting.Evaluator = original_pmap, original_evaluator
-
-
-class PendingEvaluation(dict):
-    """What `brax_first_evaluation_in_thread` hands brax in place of the first evaluation's metrics:
-    an empty dict, which brax logs and passes to its progress_fn (which should skip it)."""
-
-
-@contextlib.contextmanager
-def brax_first_evaluation_in_thread(deliver: Callable[[dict], None]):
-    """While active, the first evaluation of brax's `acting.Evaluator` runs in a thread.
-
-    brax 0.14.2's `ppo.train` evaluates the untrained policy before its first training epoch, and
-    each of the two compiles on first use: the evaluation's unroll (about 22 s on one H100) and then
-    the epoch (about 30 s), one after the other. Here the first `run_evaluation` starts the
-    evaluation in a thread and returns a `PendingEvaluation` at once, so brax goes on to compile
-    and run the epoch while the thread compiles and runs the evaluation (XLA compiles without
-    holding Python's GIL).
-
-    deliver(metrics) gets the first evaluation's metrics, once: from the thread as soon as they
-    exist, under a lock. Every exit waits for the thread; after an exit by an exception no delivery
-    starts, and the thread's own error is dropped for the one being raised. The next
-    `run_evaluation` waits for the thread first, so every evaluation still runs in order, with the
-    same keys and environment states as without the thread: the metrics are identical. An exception
-    in the thread is raised in the main thread there, or at the exit.
-
-    Enter it after the other Evaluator patches (`brax_evaluator_compiles_once`,
-    `brax_training_state`) so that the thread runs them too.
-    """
-    from brax.training import acting
-
-    original = acting.Evaluator
-    lock = threading.Lock()
-    shared = {"thread": None, "error": None, "closed": False}
-
-    def finish() -> None:
-        thread = shared["thread"]
-        if thread is not None:
-            thread.join()
-            shared["thread"] = None
-            if shared["error"] is not None:
-                error, shared["error"] = shared["error"], None
-                raise error
-
-    class Evaluator(original):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            self._evaluations_started = 0
-
-        def run_evaluation(self, policy_params, training_metrics, aggregate_episodes=True):
-            finish()
-            self._evaluations_started += 1
-            if self._evaluations_started > 1:
-                return super().run_evaluation(policy_params, training_metrics, aggregate_episodes)
-
-            def work():
-                try:
-                    metrics = super(Evaluator, self).run_evaluation(
-                        policy_params, training_metrics, aggregate_episodes
-                    )
-                    with lock:
-                        if not shared["closed"]:
-                            deliver(metrics)
-                except BaseException as e:  # raised in the main thread by finish()
-                    shared["error"] = e
-
-            shared["thread"] = threading.Thread(target=work, name="brax-first-evaluation", daemon=True)
-            shared["thread"].start()
-            return PendingEvaluation()
-
-    acting.Evaluator = Evaluator
-    failed = True
-    try:
-        yield
-        failed = False
-    finally:
-        acting.Evaluator = original
-        if failed:  # no delivery after this; the thread still ends before the process may
-            with lock:
-                shared["closed"] = True
-            thread = shared["thread"]
-            if thread is not None:
-                thread.join()  # (a thread left inside XLA at interpreter exit aborts the process)
-        else:
-            try:
-                finish()
-            finally:
-                with lock:
-                    shared["closed"] = True

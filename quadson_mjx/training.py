@@ -90,9 +90,6 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
         # Evaluations (the logged eval/* metrics) run the policy's mean action, as deployment does;
         # False samples from the policy as in training (brax's default).
         "deterministic_eval": True,
-        # Compile and run the first evaluation (the untrained policy) in a thread while the first
-        # training epoch compiles (compat.brax_first_evaluation_in_thread); same metrics either way.
-        "overlap_first_eval": True,
         "seed": 0,
     }
     presets = {
@@ -154,9 +151,6 @@ def check_ppo_config(cfg) -> None:
         raise ValueError(
             f"ppo.policy_distribution is {cfg.policy_distribution!r}; choose from {list(POLICY_DISTRIBUTIONS)}"
         )
-    for key in ("normalize_observations", "deterministic_eval", "overlap_first_eval"):
-        if not isinstance(cfg[key], bool):
-            raise ValueError(f"ppo.{key} must be true or false, got {cfg[key]!r}")
     if cfg.multi_device not in ("sharded_jit", "pmap"):
         raise ValueError(f"ppo.multi_device is {cfg.multi_device!r}; choose 'sharded_jit' or 'pmap'")
     for key in (
@@ -315,7 +309,6 @@ PPO_KEYS_ADDED = {
     "max_devices": 0,
     "multi_device": "sharded_jit",
     "deterministic_eval": False,
-    "overlap_first_eval": True,  # timing only: the metrics are the same either way
 }
 
 
@@ -727,9 +720,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     def global_step(step) -> int:
         return start_step if int(step) == 0 else int(step) + offset
 
-    def progress_fn(step, metrics, check_stop: bool = True):
-        if isinstance(metrics, compat.PendingEvaluation):  # the first evaluation, still running
-            return
+    def progress_fn(step, metrics):
         step = global_step(step)
         reward = metrics.get("eval/episode_reward")
         extra = progress.update(step, None if reward is None else float(reward))
@@ -753,8 +744,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         last_metrics.update(record)
         if on_eval is not None:
             on_eval(step, record)
-        if check_stop:
-            stop.check()
+        stop.check()
 
     def policy_params_fn(step, make_policy, params):
         step = global_step(step)
@@ -777,17 +767,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         if ppo_cfg.multi_device == "sharded_jit"
         else contextlib.nullcontext()
     )
-    overlap = (
-        compat.brax_first_evaluation_in_thread(lambda metrics: progress_fn(0, metrics, check_stop=False))
-        if ppo_cfg.overlap_first_eval
-        else contextlib.nullcontext()
-    )
     try:
         with (
             multi_device,
             compat.brax_evaluator_compiles_once(),
             compat.brax_training_state(state, eval_offset=first_epoch if ppo_cfg.num_evals > 1 else 0),
-            overlap,
             compilations,
         ):
             stop.check()
