@@ -268,7 +268,11 @@ class LocomotionEnv(Env):
         qpos = self._home_qpos
         data = mjx.make_data(self.sys)
         data = data.replace(qpos=qpos, qvel=jnp.zeros(self.sys.nv), ctrl=self._home_ctrl)
-        data = mjx.forward(self.sys, data)
+        # Positions only (body, geom and site frames): a step recomputes everything else from qpos,
+        # qvel and ctrl, so its result is the same as after a full mjx.forward (tested bit for bit),
+        # and the reset compiles in a quarter of the time (a full forward is a physics step's worth).
+        # Forces, accelerations and contacts are zero until the first step.
+        data = mjx.kinematics(self.sys, data)
         info = {
             **self.episode_info(k_info),
             "gait_progress": jnp.zeros(()),

@@ -59,6 +59,32 @@ def test_deterministic_under_fixed_key(fns):
     np.testing.assert_array_equal(s1.pipeline_state.qpos, s2.pipeline_state.qpos)
 
 
+def test_reset_without_forward_steps_as_after_a_full_forward(env, fns):
+    # reset computes kinematics only; a step from it must equal a step from the same state after
+    # MJX's full forward (forces, constraints, contacts), step for step
+    from mujoco import mjx
+
+    reset, step = fns
+    s = reset(jax.random.PRNGKey(5))
+    d = s.pipeline_state
+    # the frames are there: MuJoCo C's kinematics of the same qpos
+    m = env.mj_model
+    c = mujoco.MjData(m)
+    c.qpos[:] = np.asarray(d.qpos)
+    mujoco.mj_kinematics(m, c)
+    np.testing.assert_allclose(d.xpos, c.xpos, atol=1e-6)
+    np.testing.assert_allclose(d.site_xpos, c.site_xpos, atol=1e-6)
+    full = s.replace(pipeline_state=jax.jit(mjx.forward)(env.sys, d))
+    assert float(jnp.abs(full.pipeline_state.qfrc_actuator).max()) > 0  # forward did add something
+    a = jnp.linspace(-0.5, 0.5, 12)
+    for _ in range(5):
+        s, full = step(s, a), step(full, a)
+        np.testing.assert_array_equal(s.pipeline_state.qpos, full.pipeline_state.qpos)
+        np.testing.assert_array_equal(s.pipeline_state.qvel, full.pipeline_state.qvel)
+        np.testing.assert_array_equal(s.obs, full.obs)
+        np.testing.assert_array_equal(s.reward, full.reward)
+
+
 def test_reward_terms_by_hand(env, fns):
     reset, _ = fns
     s = reset(jax.random.PRNGKey(0))
