@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from pathlib import Path
@@ -33,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from mujoco import mjx  # noqa: E402
 from mujoco.mjx._src import collision_driver, constraint, forward, sensor, smooth, solver  # noqa: E402
-from physics_vs_go1 import NOISE_RAD, load_go1  # noqa: E402
+from physics_vs_go1 import NOISE_RAD, load_go1, run_meta  # noqa: E402
 
 from quadson_mjx.env import LocomotionEnv  # noqa: E402
 from quadson_mjx.env_config import env_config  # noqa: E402
@@ -167,13 +166,7 @@ def main(argv=None):
     )
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    meta = {
-        "device": jax.devices()[0].device_kind,
-        "jax": jax.__version__,
-        "mujoco": mujoco.__version__,
-        "python": platform.python_version(),
-        "args": vars(args),
-    }
+    meta = run_meta(args)
     print(f"# {meta}", flush=True)
     models: list[tuple] = []  # (name, MjModel, qpos0, ctrl0, stages to time or None: all)
     if args.go1_scene:

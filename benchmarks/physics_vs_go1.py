@@ -80,6 +80,17 @@ def _best_time(fn, args, repeats: int) -> tuple[float, float]:
     return best, first
 
 
+def run_meta(args) -> dict:
+    """What a result depends on: the device, the versions and the command's arguments."""
+    return {
+        "device": jax.devices()[0].device_kind,
+        "jax": jax.__version__,
+        "mujoco": mujoco.__version__,
+        "python": platform.python_version(),
+        "args": vars(args),
+    }
+
+
 def load_go1(scene: str) -> mujoco.MjModel:
     """Playground's feet-only Go1 scene without its visual meshes (collision-free, massless)."""
     spec = mujoco.MjSpec.from_file(scene)
@@ -176,13 +187,7 @@ def main(argv=None):
     p.add_argument("--robots", nargs="+", default=["quadson"], choices=list(ROBOT_NAMES))
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    meta = {
-        "device": jax.devices()[0].device_kind,
-        "jax": jax.__version__,
-        "mujoco": mujoco.__version__,
-        "python": platform.python_version(),
-        "args": vars(args),
-    }
+    meta = run_meta(args)
     rows: list[dict] = []
 
     def record(row):
