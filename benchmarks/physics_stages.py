@@ -18,6 +18,7 @@ step; the JSON is rewritten after every model.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 import time
@@ -180,7 +181,7 @@ def main(argv=None):
         models.append((robot, m, m.key_qpos[key], m.key_ctrl[key], None))
         if robot == "quadson":
             for v in args.variants:
-                mv = LocomotionEnv(env_config(robot=robot, **TRAINING)).mj_model
+                mv = copy.deepcopy(m)  # the training model, changed below
                 for path, value in VARIANTS[v].items():
                     set_attr(mv, path, value)
                 models.append((f"quadson_{v}", mv, m.key_qpos[key], m.key_ctrl[key], args.variant_stages))
