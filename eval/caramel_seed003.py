@@ -5,7 +5,7 @@
     python eval/caramel_seed003.py --run results/caramel/policy   # + rows of a trained policy
 
 Writes a JSON of the measured and published numbers and prints markdown tables (mean +- sample std).
-The experiments themselves are quadson_mjx.robots.caramel.experiments.
+The experiments themselves are quadson_mjx.seed003.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from quadson_mjx.robots.caramel import experiments as E  # noqa: E402
+from quadson_mjx import seed003 as E  # noqa: E402
 
 
 def _cell(pair, scale=1.0, digits=3) -> str:

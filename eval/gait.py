@@ -16,7 +16,7 @@ roll/pitch oscillation as max - min and standard deviation [deg] (seed 003, Tabl
 pitch [deg] (negative: nose up). The default swing is the seed's Bezier (apex h / sqrt 3): with
 "bezier_apex" (the environment's) the open-loop trot falls nose-up at 1.6 s (models/quadson/README.md).
 
---robot caramel runs seed 003's planner on Caramel instead (quadson_mjx.robots.caramel.experiments
+--robot caramel runs seed 003's planner on Caramel instead (quadson_mjx.seed003
 .walk_sample, the walk of its Tables II-III, for --duration-s after standing 1 s; --pid adds seed
 003's stabilizer): mean velocity along the start heading, yaw rate, Δroll and Δpitch [deg].
 """
@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from quadson_mjx import fivebar  # noqa: E402
 from quadson_mjx import gait as G  # noqa: E402
-from quadson_mjx.deploy import quat_to_rpy  # noqa: E402
+from quadson_mjx.quat import quat_to_rpy  # noqa: E402
 from quadson_mjx.robots.quadson import model as M  # noqa: E402
 from quadson_mjx.swing import SWING_SHAPES  # noqa: E402
 
@@ -133,7 +133,7 @@ def _table(rows) -> str:
 
 
 def caramel_main(args, parser) -> int:
-    from quadson_mjx.robots.caramel import experiments as E
+    from quadson_mjx import seed003 as E
     from quadson_mjx.robots.caramel import gait as CG
 
     if args.gait not in ("trot", *CG.GAIT_NAMES) or args.swing not in (None, "cycloid"):

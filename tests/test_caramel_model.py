@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from quadson_mjx import serial
-from quadson_mjx.deploy import quat_to_rpy
+from quadson_mjx.quat import quat_to_rpy
 from quadson_mjx.robots.caramel import constants as C
 from quadson_mjx.robots.caramel import model as M
 

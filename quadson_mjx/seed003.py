@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from quadson_mjx import stabilizer, swing
-from quadson_mjx.deploy import quat_to_rpy
+from quadson_mjx.quat import quat_to_rpy
 from quadson_mjx.robots.caramel import constants as C
 from quadson_mjx.robots.caramel import gait as G
 from quadson_mjx.robots.caramel import model as M
