@@ -165,6 +165,7 @@ def export_run(
     from quadson_mjx import training
     from quadson_mjx.config import to_json
     from quadson_mjx.env import LocomotionEnv
+    from quadson_mjx.provenance import versions
 
     env_cfg, ppo_cfg = training.load_run_config(run_dir)
     env = LocomotionEnv(env_cfg)
@@ -176,7 +177,7 @@ def export_run(
         "ppo_config": json.loads(to_json(ppo_cfg)),
         "ctrl_dt_s": env.ctrl_dt,
         "action_scale_m": float(env_cfg.action_scale_m),
-        "versions": training.versions(),
+        "versions": versions(),
     }
     arrays = export_arrays(
         params,

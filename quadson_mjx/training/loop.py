@@ -1,0 +1,291 @@
+"""Brax PPO training of foot-offset policies: configs, checkpoints, MCAP metrics, resume.
+
+`train(env_cfg, ppo_cfg, run_dir)` calls `brax.training.agents.ppo.train` (not a fork of it) and
+writes one run directory:
+
+    run_dir/config.json              resolved env + ppo configs, versions
+    run_dir/train.mcap               every evaluation's metrics (/train/metrics), events (/train/log),
+                                     configs and versions as metadata, the MJCF as an attachment
+    run_dir/checkpoints/step_*.msgpack  (normaliser, policy, value) params at every evaluation
+    run_dir/checkpoints/state_*.npz     brax's whole TrainingState (+ Adam's moments, step count)
+    run_dir/checkpoints/env_state_*.npz the environments' states, when stopped by a signal
+    run_dir/checkpoints/latest       name of the newest checkpoint
+
+Checkpoints are written atomically (temp file + rename), so a killed run never leaves a half file
+behind as its newest. `--resume RUN_DIR` restores the whole training state and continues the run
+as if it had not stopped (see `train`); the previous log is kept beside the new one, which starts
+with its readable contents. SIGINT and SIGTERM stop a run at the next safe point (see `train`).
+
+Several local GPUs: brax splits environments and batches over them; `compat.brax_multi_device`
+compiles brax's per-device functions as one sharded jit (ppo.multi_device, ppo.max_devices).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+
+from quadson_mjx.config import to_json
+from quadson_mjx.provenance import versions
+from quadson_mjx.training.checkpoints import (
+    _load_npz,
+    _save_npz,
+    env_state_path,
+    load_checkpoint,
+    save_checkpoint,
+    training_state_path,
+)
+from quadson_mjx.training.monitor import Progress, XlaCompilations, _Stop
+from quadson_mjx.training.networks import make_networks
+from quadson_mjx.training.presets import check_ppo_config, epoch_steps, local_devices_to_use
+from quadson_mjx.training.runs import _reopen_log, check_new_run_dir, load_run_config, resume_point
+
+
+def train(
+    env_cfg,
+    ppo_cfg,
+    run_dir: str | Path,
+    resume: bool = False,
+    progress_stream=sys.stdout,
+    on_eval: Callable[[int, dict], None] | None = None,
+):
+    """Trains with brax PPO and writes the run directory. Returns (make_policy, params, metrics).
+
+    resume=True continues the run in `run_dir` (configs come from it) from its newest checkpoint,
+    restoring brax's whole training state: parameters, normaliser, Adam's moments and step count
+    (state_*.npz, written at every evaluation), the PRNG keys (derived from the seed and the epoch
+    number) and, when the run stopped on a signal or Ctrl-C, the environments' states
+    (env_state_*.npz). Then the resumed run's later evaluations and parameters equal those of
+    an uninterrupted run (tested on the CPU, bit for bit). After a hard kill (no env_state file)
+    the environments restart from the run's initial states, so the curve continues but is not
+    identical; a checkpoint without a state file (older versions) restores the parameters and
+    normaliser only and the moments restart. A run without a checkpoint starts over from step 0.
+    The previous train.mcap is kept as train.before_resume_N.mcap; its readable contents
+    (read past damaged records) start the new log.
+
+    SIGINT and SIGTERM (Ctrl-C, a scheduler's preemption) are deferred while training: the run
+    stops at the next safe point: before a training epoch or an evaluation, or after saving a
+    checkpoint. A signal that arrives during an XLA compilation (tens of seconds on the first epoch
+    and evaluation) or a training epoch takes effect when it ends; a second signal stops at once.
+    Stopping raises StopRequested (a KeyboardInterrupt) after closing the log and saving the state.
+    """
+    stop = _Stop()
+    with stop.installed():
+        return _train(env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop)
+
+
+def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: _Stop):
+    from brax.training.agents.ppo import train as ppo
+
+    from quadson_mjx import compat
+    from quadson_mjx.env import LocomotionEnv
+    from quadson_mjx.env_config import check_env_config
+    from quadson_mjx.mcap_log import McapLog
+    from quadson_mjx.randomize import randomization_fn
+    from quadson_mjx.wrappers import wrap_for_training
+
+    compat.patch_brax()
+    start_step, ckpt = 0, None
+    if resume:
+        env_cfg, ppo_cfg = load_run_config(run_dir)
+        start_step, ckpt = resume_point(run_dir, ppo_cfg)
+        if ckpt is None:
+            print(
+                f"resume: {run_dir} has no checkpoint after step 0: starting from step 0 with its configs",
+                file=stream,
+            )
+    check_env_config(env_cfg)
+    check_ppo_config(ppo_cfg)
+    if not resume:
+        check_new_run_dir(run_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+
+    env = LocomotionEnv(env_cfg)
+    eval_env = LocomotionEnv(env_cfg)
+    per_epoch, epochs = epoch_steps(ppo_cfg)
+    first_epoch = start_step // per_epoch
+    state = compat.BraxTrainingState(first_epoch=first_epoch)
+    restore, restored = None, "nothing (a fresh start from the seed)"
+    if ckpt is not None:
+        restore = load_checkpoint(ckpt, env.observation_size, env.action_size, ppo_cfg)
+        restored = "parameters and normaliser only (no state file: the optimiser's moments restart)"
+        if training_state_path(run_dir, start_step).exists():
+            state.restore_training_state = _load_npz(training_state_path(run_dir, start_step), start_step)
+            restored = "the whole training state (Adam's moments, step count, keys)"
+            if env_state_path(run_dir, start_step).exists():
+                state.restore_env_state = _load_npz(env_state_path(run_dir, start_step), start_step)
+                restored += " and the environments"
+            else:
+                restored += "; the environments restart from the run's initial states"
+        print(f"resume from step {start_step:,}: restoring {restored}", file=stream)
+    devices = local_devices_to_use(ppo_cfg)
+    state.epoch_keys = lambda epoch: compat.brax_epoch_keys(ppo_cfg.seed, epoch, devices, jax.process_index())
+    vers = versions()
+    config_tmp = run_dir / "config.json.tmp"
+    config_tmp.write_text(
+        json.dumps(
+            {"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": vers},
+            indent=2,
+        )
+    )
+    os.replace(config_tmp, run_dir / "config.json")
+
+    log_path = run_dir / "train.mcap"
+    old, kept, contents = [], None, None
+    if resume and log_path.exists():
+        log, kept, old, contents = _reopen_log(run_dir, log_path, stream)
+    else:
+        log = McapLog(log_path, profile="quadson_mjx.train")
+    have_meta = {m.name: dict(m.metadata) for m in contents.metadata} if contents else {}
+    for name, data in (
+        ("env_config", {"json": to_json(env_cfg)}),
+        ("ppo_config", {"json": to_json(ppo_cfg)}),
+    ):
+        if name not in have_meta:
+            log.metadata(name, data)
+    if have_meta.get("versions") != {k: str(v) for k, v in vers.items()}:
+        log.metadata(
+            "versions" if "versions" not in have_meta else f"versions_resume_step_{start_step}", vers
+        )
+    xml_name = f"{env.robot.name}.xml"
+    if not (contents and any(a.name == xml_name for a in contents.attachments)):
+        log.attachment(xml_name, env.robot.model_xml_text(env_cfg.terrain).encode(), "application/xml")
+    event = {"event": "resume" if resume else "start", "step": start_step}
+    if resume:
+        event.update(restored=restored, kept_log=kept.name if kept else "", copied_messages=len(old))
+        if contents is not None and contents.damaged:
+            event["damaged_records"] = "; ".join(contents.damaged)[:2000]
+    log.log("/train/log", event, time.time_ns())
+    logged_steps = {m["progress"]["step"] for t, _, m in old if t == "/train/metrics" and "progress" in m}
+
+    progress = Progress(total_steps=ppo_cfg.num_timesteps, start_step=start_step, stream=stream)
+    compilations = XlaCompilations()
+    last_metrics: dict = {}
+    # brax counts steps from its TrainingState: restored (global) when the state file was, else
+    # from 0 in this session; its calls before the first epoch pass step 0.
+    offset = 0 if state.restore_training_state is not None else start_step
+    state.checkpoint = stop.check
+    saved = {"step": None, "epochs": -1}
+
+    def global_step(step) -> int:
+        return start_step if int(step) == 0 else int(step) + offset
+
+    def progress_fn(step, metrics):
+        step = global_step(step)
+        reward = metrics.get("eval/episode_reward")
+        extra = progress.update(step, None if reward is None else float(reward))
+        record = {
+            **{k: float(v) for k, v in metrics.items()},
+            **{f"progress/{k}": v for k, v in extra.items()},
+        }
+        record["progress/step"] = step
+        record["progress/xla_compiles"] = compilations.count
+        record["progress/xla_compile_s"] = compilations.seconds
+        record["progress/xla_cache_hits"] = compilations.cache_hits
+        length = record.get("eval/avg_episode_length")
+        if length:  # brax sums per-step metrics over an episode; per-step means are what one reads
+            for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset", "vx_sq_err", "vy_sq_err", "yaw_rate_sq_err", "base_height", "base_below_terrain", "fall", "off_field"):  # fmt: skip
+                if f"eval/episode_{name}" in record:
+                    record[f"eval/mean_{name}"] = record[f"eval/episode_{name}"] / length
+        if step not in logged_steps:  # a resumed run re-evaluates its checkpoint: logged already
+            log.log("/train/metrics", _nest(record), time.time_ns())
+            logged_steps.add(step)
+        last_metrics.clear()
+        last_metrics.update(record)
+        if on_eval is not None:
+            on_eval(step, record)
+        stop.check()
+
+    def policy_params_fn(step, make_policy, params):
+        step = global_step(step)
+        if state.latest is not None:  # after an epoch: the whole training state too
+            _save_npz(training_state_path(run_dir, step), state.training_state_leaves(), step)
+        elif step > start_step:
+            raise RuntimeError(
+                "compat.brax_training_state did not find brax's training epoch (brax changed?)"
+            )
+        if not (state.epochs_done == 0 and ckpt is not None):  # a resumed checkpoint exists already
+            save_checkpoint(run_dir, step, params)
+        saved.update(step=step, epochs=state.epochs_done)
+        stop.check()
+
+    remaining_epochs = epochs - first_epoch
+    episode_length = ppo_cfg.episode_length or env.episode_length
+    randomize = randomization_fn(env_cfg.randomization, env.base_body) if env_cfg.randomize else None
+    multi_device = (
+        compat.brax_multi_device(devices)
+        if ppo_cfg.multi_device == "sharded_jit"
+        else contextlib.nullcontext()
+    )
+    try:
+        with (
+            multi_device,
+            compat.brax_evaluator_compiles_once(),
+            compat.brax_training_state(state, eval_offset=first_epoch if ppo_cfg.num_evals > 1 else 0),
+            compilations,
+        ):
+            stop.check()
+            make_policy, params, _ = ppo.train(
+                environment=env,
+                eval_env=eval_env,
+                wrap_env_fn=wrap_for_training,
+                randomization_fn=randomize,
+                num_timesteps=remaining_epochs * per_epoch,
+                num_evals=remaining_epochs + 1 if ppo_cfg.num_evals > 1 else 1,
+                num_envs=ppo_cfg.num_envs,
+                num_eval_envs=ppo_cfg.num_eval_envs,
+                episode_length=episode_length,
+                unroll_length=ppo_cfg.unroll_length,
+                batch_size=ppo_cfg.batch_size,
+                num_minibatches=ppo_cfg.num_minibatches,
+                num_updates_per_batch=ppo_cfg.num_updates_per_batch,
+                learning_rate=ppo_cfg.learning_rate,
+                entropy_cost=ppo_cfg.entropy_cost,
+                discounting=ppo_cfg.discounting,
+                gae_lambda=ppo_cfg.gae_lambda,
+                clipping_epsilon=ppo_cfg.clipping_epsilon,
+                max_grad_norm=ppo_cfg.max_grad_norm,
+                reward_scaling=ppo_cfg.reward_scaling,
+                normalize_observations=ppo_cfg.normalize_observations,
+                network_factory=lambda obs, act, preprocess_observations_fn: make_networks(obs, act, ppo_cfg),
+                seed=ppo_cfg.seed,
+                progress_fn=progress_fn,
+                policy_params_fn=policy_params_fn,
+                restore_params=restore,
+                max_devices_per_host=ppo_cfg.max_devices or None,
+                deterministic_eval=ppo_cfg.deterministic_eval,
+            )
+    except KeyboardInterrupt as e:
+        event = {"event": "interrupted", "step": saved["step"] if saved["step"] is not None else start_step}
+        if state.latest is not None and saved["epochs"] == state.epochs_done:
+            # stopped between epochs: the environments' states make the resume exact
+            _save_npz(env_state_path(run_dir, saved["step"]), state.env_state_leaves(), saved["step"])
+            event["env_state"] = env_state_path(run_dir, saved["step"]).name
+        event["reason"] = str(e) or type(e).__name__
+        log.log("/train/log", event, time.time_ns())
+        log.close()
+        raise
+    except BaseException as e:  # any other failure: the log still gets its summary and says why
+        event = f"failed: {type(e).__name__}: {e}"[:500]
+        log.log("/train/log", {"event": event, "step": start_step}, time.time_ns())
+        log.close()
+        raise
+    print(compilations.summary(), file=stream, flush=True)
+    # brax hands the final parameters to policy_params_fn at its last evaluation: already saved.
+    final_step = progress.last[1] if progress.last else ppo_cfg.num_timesteps
+    log.log("/train/log", {"event": "finished", "step": final_step}, time.time_ns())
+    log.close()
+    return make_policy, params, last_metrics
+
+
+def _nest(record: dict) -> dict:
+    from quadson_mjx.mcap_log import nest_metrics
+
+    return nest_metrics(record)

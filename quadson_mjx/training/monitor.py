@@ -1,0 +1,147 @@
+"""Watching a training run: terminal progress, XLA compilations (and jax's persistent compilation
+cache), and SIGINT / SIGTERM deferred to the loop's safe points."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import jax
+
+
+def enable_compilation_cache(path: str | Path) -> Path:
+    """Keeps XLA executables in `path` across processes (jax's persistent compilation cache): a
+    second run of the same configuration on the same machine loads its programs instead of
+    compiling them. Every program is kept, however small: the main job compiles about 90 programs
+    of under 0.5 s each, about 6 s together on one H100."""
+    path = Path(path).expanduser()
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    return path
+
+
+class XlaCompilations:
+    """Counts this process's XLA compilations while active, from jax.monitoring's events: `count`
+    (executables jax had to build: a new function or a new shape, dtype or placement of one),
+    `seconds` spent building them, and `cache_hits` (those the persistent cache served)."""
+
+    _COMPILE = "/jax/core/compile/backend_compile_duration"
+    _HIT = "/jax/compilation_cache/cache_hits"
+
+    def __init__(self):
+        self.count = 0
+        self.seconds = 0.0
+        self.cache_hits = 0
+        self.programs: list[tuple[str, float]] = []  # (function name, seconds), in order
+
+    def _on_duration(self, event: str, duration: float, **kwargs) -> None:
+        if event == self._COMPILE:
+            self.count += 1
+            self.seconds += duration
+            self.programs.append((str(kwargs.get("fun_name", "?")), float(duration)))
+
+    def summary(self, top: int = 4) -> str:
+        """One line: count, total seconds, the slowest programs."""
+        slow = sorted(self.programs, key=lambda p: -p[1])[:top]
+        names = ", ".join(f"{n} {s:.1f} s" for n, s in slow)
+        small = [s for _, s in self.programs if s < 0.5]
+        return (
+            f"{self.count} XLA compilations, {self.seconds:.1f} s ({self.cache_hits} from the cache): {names}; "
+            f"{len(small)} under 0.5 s, {sum(small):.1f} s together"
+        )
+
+    def _on_event(self, event: str, **kwargs) -> None:
+        if event == self._HIT:
+            self.cache_hits += 1
+
+    def __enter__(self):
+        jax.monitoring.register_event_duration_secs_listener(self._on_duration)
+        jax.monitoring.register_event_listener(self._on_event)
+        return self
+
+    def __exit__(self, *exc):
+        from jax._src import monitoring  # public registration has no public removal
+
+        monitoring.unregister_event_duration_listener(self._on_duration)
+        monitoring.unregister_event_listener(self._on_event)
+        return False
+
+
+@dataclasses.dataclass
+class Progress:
+    """Terminal progress: one line per evaluation with steps, steps/s, ETA and the latest reward."""
+
+    total_steps: int
+    start_step: int = 0
+    stream: object = sys.stdout
+    t0: float = dataclasses.field(default_factory=time.monotonic)
+    last: tuple[float, int] | None = None
+
+    def update(self, step: int, reward: float | None) -> dict[str, float]:
+        now = time.monotonic()
+        done = step - self.start_step
+        if self.last is not None and step > self.last[1]:
+            sps = (step - self.last[1]) / max(now - self.last[0], 1e-9)
+        else:
+            sps = float("nan")
+        remaining = max(self.total_steps - step, 0)
+        eta = remaining / sps if sps == sps and sps > 0 else float("nan")
+        self.last = (now, step)
+        width = 30
+        filled = int(width * min(step / max(self.total_steps, 1), 1.0))
+        bar = "#" * filled + "-" * (width - filled)
+        eta_txt = f"{int(eta // 60)}m{int(eta % 60):02d}s" if eta == eta else "--"
+        sps_txt = f"{sps:,.0f}" if sps == sps else "--"
+        rew_txt = f"{reward:.3f}" if reward is not None else "--"
+        print(
+            f"[{bar}] {step:,}/{self.total_steps:,} steps | {sps_txt} steps/s | ETA {eta_txt} | "
+            f"eval reward {rew_txt} | {now - self.t0:.0f}s",
+            file=self.stream,
+            flush=True,
+        )
+        return {"env_steps_per_s": sps, "steps_this_session": float(done)}
+
+
+class StopRequested(KeyboardInterrupt):
+    """SIGINT or SIGTERM asked a training run to stop; raised at the next safe point (see train)."""
+
+
+@dataclasses.dataclass
+class _Stop:
+    """Signals deferred to a flag that the training loop checks at safe points."""
+
+    signum: int | None = None
+
+    def check(self) -> None:
+        if self.signum is not None:
+            raise StopRequested(f"stopped by {signal.Signals(self.signum).name}")
+
+    def handler(self, signum, frame):
+        if self.signum is not None:  # a second signal: stop now, wherever Python is
+            raise KeyboardInterrupt(f"second {signal.Signals(signum).name}")
+        self.signum = signum
+        message = (
+            f"\n{signal.Signals(signum).name}: stopping at the next safe point (after the compilation or "
+            "training epoch under way; a second signal stops at once)\n"
+        )
+        with contextlib.suppress(OSError, ValueError):  # an unbuffered write: safe inside a handler
+            os.write(sys.stderr.fileno(), message.encode())
+
+    @contextlib.contextmanager
+    def installed(self):
+        if threading.current_thread() is not threading.main_thread():
+            yield  # signal handlers can only be set from the main thread
+            return
+        previous = {s: signal.signal(s, self.handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            for s, h in previous.items():
+                signal.signal(s, h)

@@ -1,0 +1,173 @@
+"""PPO hyperparameters: the presets (gpu, cpu, test), their checks, the keys added since runs were
+published, and what brax derives from them (devices, steps per epoch)."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import ml_collections
+
+
+def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
+    """PPO hyperparameters. Presets: "gpu" (the real job on one GPU), "cpu" (a small run that
+    finishes in minutes on a CPU and still learns), "test" (a few iterations, for tests)."""
+    base = {
+        "num_timesteps": 80_000_000,
+        # An evaluation (and checkpoint) every 16M steps: each one runs 128 episodes of 938 sequential
+        # steps, 2.74 s on one H100, while 16M training steps take 21.5 s (748k steps/s); with 11,
+        # the 10 after the first spent 27 s of a 248 s main job (benchmarks/results_time_to_policy_h100_evals6.json)
+        "num_evals": 6,
+        "num_envs": 8192,
+        "num_eval_envs": 128,
+        "episode_length": 0,  # 0: the env config's episode length (18.75 s)
+        "unroll_length": 20,
+        # 8 minibatches of 1024 envs x 20 steps: the same 163,840 samples per update as 32 x 256,
+        # in 4x fewer, larger gradient steps (the small MLPs leave a GPU idle between kernels;
+        # measured on one H100: 594k env steps/s against 460k), with twice the learning rate.
+        "batch_size": 1024,
+        "num_minibatches": 8,
+        "num_updates_per_batch": 4,
+        "learning_rate": 6e-4,
+        "entropy_cost": 1e-2,
+        "discounting": 0.97,
+        "gae_lambda": 0.95,
+        "clipping_epsilon": 0.2,
+        "max_grad_norm": 1.0,
+        "reward_scaling": 1.0,
+        "normalize_observations": True,
+        "policy_hidden": (128, 128, 128, 128),
+        "value_hidden": (256, 256, 256, 256, 256),
+        # "tanh_normal": brax's default (tanh-squashed Gaussian, mean and scale from the MLP with
+        # random weights, so the untrained policy already pushes every foot off the gait).
+        # "gait_normal": a Gaussian whose mean layer starts at zero, so the untrained policy is the
+        # gait itself, with a learned state-independent std starting at init_noise_std (used only
+        # here). Either way the env clips actions to [-1, 1].
+        "policy_distribution": "tanh_normal",
+        "init_noise_std": 0.3,
+        # Local GPUs to train on (0: all). Several: brax splits the envs and the batch evenly and
+        # all-reduces gradients. "sharded_jit" compiles brax's per-device functions as one jit over
+        # the devices (compat.pmap_as_sharded_jit; jax's own pmap crashes XLA on jax 0.11.2 with
+        # two GPUs); "pmap" keeps jax's pmap (and is always used across several hosts).
+        "max_devices": 0,
+        "multi_device": "sharded_jit",
+        # Evaluations (the logged eval/* metrics) run the policy's mean action, as deployment does;
+        # False samples from the policy as in training (brax's default).
+        "deterministic_eval": True,
+        "seed": 0,
+    }
+    presets = {
+        "gpu": {},
+        "cpu": {
+            # 2 min 40 s on 2 cores (measured). Starts from the gait (gait_normal, small exploration
+            # noise): random initial offsets make the robot fall, and learning not to fall from
+            # there takes more samples than a CPU gives in minutes (README: Results).
+            "policy_distribution": "gait_normal",
+            "init_noise_std": 0.1,
+            "num_timesteps": 600_000,
+            "num_evals": 6,
+            "num_envs": 128,
+            "num_eval_envs": 32,
+            "episode_length": 250,
+            "batch_size": 128,
+            "num_minibatches": 8,
+            "learning_rate": 3e-4,
+            "policy_hidden": (64, 64),
+            "value_hidden": (128, 128),
+        },
+        "test": {
+            "num_timesteps": 2 * 4 * 8 * 2,
+            "num_evals": 2,
+            "num_envs": 4,
+            "num_eval_envs": 2,
+            "episode_length": 10,
+            "unroll_length": 8,
+            "batch_size": 4,
+            "num_minibatches": 2,
+            "num_updates_per_batch": 1,
+            "policy_hidden": (8,),
+            "value_hidden": (8,),
+        },
+    }
+    if preset not in presets:
+        raise ValueError(f"unknown ppo preset {preset!r}; choose from {sorted(presets)}")
+    cfg = ml_collections.ConfigDict({**base, **presets[preset], "preset": preset})
+    cfg.lock()
+    return cfg
+
+
+def local_devices_to_use(cfg) -> int:
+    """This process's devices brax trains on: all local ones, or ppo.max_devices of them."""
+    n = jax.local_device_count()
+    return min(n, cfg.max_devices) if cfg.max_devices else n
+
+
+def _require(cfg, key: str, ok, what: str, kind=(int, float)) -> None:
+    v = cfg[key]
+    if isinstance(v, bool) or not isinstance(v, kind) or not math.isfinite(v) or not ok(v):
+        raise ValueError(f"ppo.{key} must be {what}, got {v!r}")
+
+
+def check_ppo_config(cfg) -> None:
+    """Raises ValueError naming the key for a value brax would reject late or misread silently:
+    non-finite or out-of-range numbers, sizes that do not split over the devices, unknown names."""
+    if cfg.policy_distribution not in POLICY_DISTRIBUTIONS:
+        raise ValueError(
+            f"ppo.policy_distribution is {cfg.policy_distribution!r}; choose from {list(POLICY_DISTRIBUTIONS)}"
+        )
+    if cfg.multi_device not in ("sharded_jit", "pmap"):
+        raise ValueError(f"ppo.multi_device is {cfg.multi_device!r}; choose 'sharded_jit' or 'pmap'")
+    for key in (
+        "num_timesteps",
+        "num_envs",
+        "num_eval_envs",
+        "unroll_length",
+        "batch_size",
+        "num_minibatches",
+        "num_updates_per_batch",
+        "num_evals",
+    ):
+        _require(cfg, key, lambda v: v >= 1, "an integer >= 1", int)
+    positive = lambda v: v > 0  # noqa: E731
+    _require(cfg, "episode_length", lambda v: v >= 0, "an integer >= 0 (0: the env's episode length)", int)
+    _require(cfg, "max_devices", lambda v: v >= 0, "an integer >= 0 (0: all)", int)
+    _require(cfg, "seed", lambda v: 0 <= v < 2**31, "an integer in [0, 2^31)", int)
+    _require(cfg, "learning_rate", positive, "a finite number > 0")
+    _require(cfg, "entropy_cost", lambda v: v >= 0, "a finite number >= 0")
+    _require(cfg, "discounting", lambda v: 0 < v <= 1, "in (0, 1]")
+    _require(cfg, "gae_lambda", lambda v: 0 <= v <= 1, "in [0, 1]")
+    _require(cfg, "clipping_epsilon", positive, "a finite number > 0")
+    _require(cfg, "max_grad_norm", positive, "a finite number > 0 (the gradient clipping norm)")
+    _require(cfg, "reward_scaling", positive, "a finite number > 0")
+    _require(cfg, "init_noise_std", positive, "a finite number > 0")
+    devices = local_devices_to_use(cfg) * jax.process_count()
+    for key in ("num_envs", "batch_size"):
+        if cfg[key] % devices:
+            raise ValueError(f"ppo.{key}={cfg[key]} does not split evenly over {devices} devices")
+    if (cfg.batch_size * cfg.num_minibatches) % cfg.num_envs:
+        raise ValueError(
+            f"ppo.batch_size * ppo.num_minibatches = {cfg.batch_size * cfg.num_minibatches} must be a multiple "
+            f"of ppo.num_envs = {cfg.num_envs} (brax collects whole unrolls of every env)"
+        )
+
+
+POLICY_DISTRIBUTIONS = ("tanh_normal", "gait_normal")
+
+
+def epoch_steps(ppo_cfg) -> tuple[int, int]:
+    """-> (environment steps per training epoch, epochs) of brax PPO for `ppo_cfg`: brax splits
+    num_timesteps into max(num_evals - 1, 1) epochs of whole training steps, rounding up."""
+    per_train_step = ppo_cfg.batch_size * ppo_cfg.unroll_length * ppo_cfg.num_minibatches
+    epochs = max(ppo_cfg.num_evals - 1, 1)
+    return math.ceil(ppo_cfg.num_timesteps / (epochs * per_train_step)) * per_train_step, epochs
+
+
+# PPO keys added after runs were already published, with the value that reproduces what those runs
+# did: a run directory saved before a key existed is read with it (load_run_config).
+PPO_KEYS_ADDED = {
+    "policy_distribution": "tanh_normal",
+    "init_noise_std": 0.3,
+    "max_devices": 0,
+    "multi_device": "sharded_jit",
+    "deterministic_eval": False,
+}
