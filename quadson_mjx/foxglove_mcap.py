@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import foxglove
@@ -45,29 +46,19 @@ from foxglove import channels as fch
 from foxglove import messages as fm
 from foxglove.mcap import MCAPWriteOptions
 
+from quadson_mjx.foxglove_scene import (
+    body_frames,
+    drawn_geoms,
+    geom_entity,
+    local_transforms,
+    pose,
+    quaternion_xyzw,
+    timestamp,
+    vector3,
+)
 from quadson_mjx.mcap_check import ROLLOUT_TOPICS  # noqa: F401 (one list for the writer and the checker)
-from quadson_mjx.robots.quadson import constants as C
 
 PROFILE = "quadson_mjx.rollout"
-FLOOR_HALF_EXTENT_M = 10.0  # an infinite MuJoCo plane is drawn this large
-_FLOOR_COLOR = (0.25, 0.35, 0.45, 1.0)
-
-
-def _ts(t_ns: int) -> fm.Timestamp:
-    return fm.Timestamp(sec=int(t_ns // 1_000_000_000), nsec=int(t_ns % 1_000_000_000))
-
-
-def _quat_xyzw(q_wxyz) -> fm.Quaternion:
-    w, x, y, z = (float(v) for v in q_wxyz)
-    return fm.Quaternion(x=x, y=y, z=z, w=w)
-
-
-def _vec(v) -> fm.Vector3:
-    return fm.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
-
-
-def _pose(pos, quat_wxyz) -> fm.Pose:
-    return fm.Pose(position=_vec(pos), orientation=_quat_xyzw(quat_wxyz))
 
 
 def json_safe(x):
@@ -85,151 +76,9 @@ def json_safe(x):
     return np.where(np.isfinite(a), a, None).tolist() if a.ndim else None
 
 
-def quat_mul(a, b):
-    """Hamilton product of wxyz quaternions (..., 4)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
-def quat_rotate(q, v):
-    """Rotates v (..., 3) by wxyz quaternion q (..., 4)."""
-    w, u = q[..., :1], q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
-
-
-def local_transforms(model: mujoco.MjModel, xpos, xquat):
-    """World body poses (..., nbody, 3), (..., nbody, 4 wxyz) -> each body's pose in its parent
-    body's frame (same shapes); the world body's entry is the identity."""
-    parent = model.body_parentid
-    conj = xquat[..., parent, :] * np.array([1.0, -1.0, -1.0, -1.0])
-    rel_pos = quat_rotate(conj, xpos - xpos[..., parent, :])
-    rel_quat = quat_mul(conj, xquat)
-    return rel_pos, rel_quat
-
-
-def body_frames(model: mujoco.MjModel, env: int) -> list[str]:
-    """Frame id of every body for environment `env` ("world" for the world body)."""
-    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}" for b in range(model.nbody)]
-    return ["world"] + [f"env{env}/{n}" for n in names[1:]]
-
-
-def _floor_color() -> fm.Color:
-    r, g, b, a = _FLOOR_COLOR
-    return fm.Color(r=r, g=g, b=b, a=a)
-
-
-def _color(model, g) -> fm.Color:
-    r, gr, b, a = (float(v) for v in model.geom_rgba[g])
-    return fm.Color(r=r, g=gr, b=b, a=a)
-
-
-def _drawn_geoms(model) -> list[int]:
-    """Geoms to draw: all but exact duplicates of another geom on the same body (a collision box
-    that coincides with its visual box would flicker)."""
-    seen, out = set(), []
-    for g in np.argsort(model.geom_group, kind="stable"):  # visual (group 2) before collision (3)
-        key = (
-            int(model.geom_bodyid[g]),
-            int(model.geom_type[g]),
-            tuple(np.round(model.geom_size[g], 9)),
-            tuple(np.round(model.geom_pos[g], 9)),
-            tuple(np.round(model.geom_quat[g], 9)),
-        )
-        if key not in seen:
-            seen.add(key)
-            out.append(int(g))
-    return sorted(out)
-
-
-def _hfield_triangles(model, g) -> fm.TriangleListPrimitive:
-    """The height field as a triangle list in the geom frame (MuJoCo's vertex layout)."""
-    h = int(model.geom_dataid[g])
-    nrow, ncol = int(model.hfield_nrow[h]), int(model.hfield_ncol[h])
-    rx, ry, top, _ = model.hfield_size[h]
-    adr = int(model.hfield_adr[h])
-    z = np.asarray(model.hfield_data[adr : adr + nrow * ncol]).reshape(nrow, ncol) * top
-    xs = np.linspace(-rx, rx, ncol)
-    ys = np.linspace(-ry, ry, nrow)
-    points = [
-        fm.Point3(x=float(xs[c]), y=float(ys[r]), z=float(z[r, c])) for r in range(nrow) for c in range(ncol)
-    ]
-    r, c = np.meshgrid(np.arange(nrow - 1), np.arange(ncol - 1), indexing="ij")
-    v00 = (r * ncol + c).ravel()
-    v01, v10, v11 = v00 + 1, v00 + ncol, v00 + ncol + 1
-    idx = np.stack([v00, v01, v11, v00, v11, v10], axis=-1).ravel().tolist()
-    return fm.TriangleListPrimitive(
-        pose=_pose(model.geom_pos[g], model.geom_quat[g]),
-        points=points,
-        color=_floor_color(),
-        indices=idx,
-    )
-
-
-def geom_entity(model, g: int, frame_id: str, entity_id: str) -> fm.SceneEntity | None:
-    """A SceneEntity drawing geom g in its body's frame (None for a type not drawn)."""
-    T = mujoco.mjtGeom
-    gtype, size = int(model.geom_type[g]), model.geom_size[g]
-    pos, quat = model.geom_pos[g], model.geom_quat[g]
-    kw: dict = {}
-    if gtype == T.mjGEOM_CAPSULE or gtype == T.mjGEOM_CYLINDER:
-        r, half = float(size[0]), float(size[1])
-        kw["cylinders"] = [
-            fm.CylinderPrimitive(
-                pose=_pose(pos, quat),
-                size=fm.Vector3(x=2 * r, y=2 * r, z=2 * half),
-                bottom_scale=1.0,
-                top_scale=1.0,
-                color=_color(model, g),
-            )
-        ]
-        if gtype == T.mjGEOM_CAPSULE:
-            axis = quat_rotate(np.asarray(quat, np.float64), np.array([0.0, 0.0, half]))
-            kw["spheres"] = [
-                fm.SpherePrimitive(
-                    pose=_pose(pos + s * axis, quat),
-                    size=fm.Vector3(x=2 * r, y=2 * r, z=2 * r),
-                    color=_color(model, g),
-                )
-                for s in (-1.0, 1.0)
-            ]
-    elif gtype == T.mjGEOM_BOX:
-        kw["cubes"] = [fm.CubePrimitive(pose=_pose(pos, quat), size=_vec(2 * size), color=_color(model, g))]
-    elif gtype == T.mjGEOM_SPHERE:
-        d = 2 * float(size[0])
-        kw["spheres"] = [
-            fm.SpherePrimitive(pose=_pose(pos, quat), size=fm.Vector3(x=d, y=d, z=d), color=_color(model, g))
-        ]
-    elif gtype == T.mjGEOM_PLANE:
-        hx = float(size[0]) or FLOOR_HALF_EXTENT_M
-        hy = float(size[1]) or FLOOR_HALF_EXTENT_M
-        thick = 0.002
-        top = np.asarray(pos, np.float64) - quat_rotate(
-            np.asarray(quat, np.float64), np.array([0, 0, thick / 2])
-        )
-        kw["cubes"] = [
-            fm.CubePrimitive(
-                pose=_pose(top, quat), size=fm.Vector3(x=2 * hx, y=2 * hy, z=thick), color=_floor_color()
-            )
-        ]
-    elif gtype == T.mjGEOM_HFIELD:
-        kw["triangles"] = [_hfield_triangles(model, g)]
-    else:  # ellipsoid, mesh, sdf: not in the Quadson model
-        return None
-    return fm.SceneEntity(timestamp=_ts(0), frame_id=frame_id, id=entity_id, frame_locked=True, **kw)
-
-
 class RolloutWriter:
-    """One rollout MCAP file. Use as a context manager or call close()."""
+    """One rollout MCAP file. Use as a context manager or call close(). `legs`: the robot's leg names in
+    the order of every per-leg array (Robot.legs); /rollout/step keys its per-leg fields by them."""
 
     def __init__(
         self,
@@ -237,6 +86,7 @@ class RolloutWriter:
         model: mujoco.MjModel,
         n_envs: int,
         ctrl_dt: float,
+        legs: Sequence[str],
         overwrite: bool = False,
         viz_envs: int | None = None,
     ):
@@ -244,6 +94,7 @@ class RolloutWriter:
         self._ctrl_dt = float(ctrl_dt)
         self.model = model
         self.n_envs = n_envs
+        self.legs = tuple(legs)
         # envs drawn (/tf, /scene, /joint_states, /odom, /imu); /rollout/step carries all of them
         self.viz_envs = n_envs if viz_envs is None else max(0, min(viz_envs, n_envs))
         self._ctx = foxglove.Context()
@@ -259,7 +110,7 @@ class RolloutWriter:
         self._log = fch.LogChannel("/log", context=ctx)
         self._imu = foxglove.Channel("/imu", schema=_IMU_SCHEMA, message_encoding="json", context=ctx)
         self._step = foxglove.Channel(
-            "/rollout/step", schema=_STEP_SCHEMA, message_encoding="json", context=ctx
+            "/rollout/step", schema=_step_schema(self.legs), message_encoding="json", context=ctx
         )
         self._frames = [body_frames(model, i) for i in range(n_envs)]
         self._parent = model.body_parentid
@@ -280,7 +131,7 @@ class RolloutWriter:
     def write_scene(self, t_ns: int = 0) -> None:
         """The static scene: robot geoms per env in body frames, the floor once in "world"; flushed."""
         entities = []
-        for g in _drawn_geoms(self.model):
+        for g in drawn_geoms(self.model):
             b = int(self.model.geom_bodyid[g])
             envs = [0] if b == 0 else range(self.viz_envs)
             for i in envs:
@@ -295,11 +146,13 @@ class RolloutWriter:
     # --- per step ----------------------------------------------------------------------------------
     def log(self, t_ns: int, level: str, message: str) -> None:
         lvl = {"info": fm.LogLevel.Info, "warning": fm.LogLevel.Warning, "error": fm.LogLevel.Error}[level]
-        self._log.log(fm.Log(timestamp=_ts(t_ns), level=lvl, message=message, name="rollout"), log_time=t_ns)
+        self._log.log(
+            fm.Log(timestamp=timestamp(t_ns), level=lvl, message=message, name="rollout"), log_time=t_ns
+        )
 
     def write_step(self, t_ns: int, traj, k: int, extra: dict | None = None) -> None:
         """Writes step k of a host Trajectory [T, B, ...] (quadson_mjx.rollout) at time t_ns."""
-        ts = _ts(t_ns)
+        ts = timestamp(t_ns)
         rel_pos, rel_quat = local_transforms(self.model, traj.xpos[k], traj.xquat[k])  # (B, nbody, .)
         tfs = []
         for i in range(self.viz_envs):
@@ -310,8 +163,8 @@ class RolloutWriter:
                         timestamp=ts,
                         parent_frame_id=frames[self._parent[b]],
                         child_frame_id=frames[b],
-                        translation=_vec(rel_pos[i, b]),
-                        rotation=_quat_xyzw(rel_quat[i, b]),
+                        translation=vector3(rel_pos[i, b]),
+                        rotation=quaternion_xyzw(rel_quat[i, b]),
                     )
                 )
         self._tf.log(fm.FrameTransforms(transforms=tfs), log_time=t_ns)
@@ -338,9 +191,9 @@ class RolloutWriter:
                         timestamp=ts,
                         frame_id="world",
                         body_frame_id=base_frame,
-                        pose=_pose(qpos[i, 0:3], qpos[i, 3:7]),
-                        linear_velocity=_vec(traj.lin_vel[k, i]),
-                        angular_velocity=_vec(traj.ang_vel[k, i]),
+                        pose=pose(qpos[i, 0:3], qpos[i, 3:7]),
+                        linear_velocity=vector3(traj.lin_vel[k, i]),
+                        angular_velocity=vector3(traj.ang_vel[k, i]),
                     ),
                     log_time=t_ns,
                 )
@@ -357,8 +210,8 @@ class RolloutWriter:
             rpy, v, w = traj.rpy[k, i], traj.lin_vel[k, i], traj.ang_vel[k, i]
             motor = {}
             if traj.motor_targets is not None:
-                m = traj.motor_targets[k, i].reshape(C.NUM_LEGS, 3)
-                motor["motor_targets"] = {leg: m[n] for n, leg in enumerate(C.LEGS)}
+                m = traj.motor_targets[k, i].reshape(len(self.legs), -1)
+                motor["motor_targets"] = {leg: m[n] for n, leg in enumerate(self.legs)}
             step = {
                 "env": i,
                 "episode_step": int(traj.episode_step[k, i]),
@@ -380,12 +233,14 @@ class RolloutWriter:
                 },
                 "observation": traj.obs[k, i],
                 "action": traj.action[k, i],
-                "foot_targets": {leg: traj.foot_targets[k, i, n] for n, leg in enumerate(C.LEGS)},
+                "foot_targets": {leg: traj.foot_targets[k, i, n] for n, leg in enumerate(self.legs)},
                 **motor,
                 "reward": {"total": traj.reward[k, i], **{n: v[k, i] for n, v in traj.reward_terms.items()}},
-                "contacts": {leg: bool(touch[n] > 0) for n, leg in enumerate(C.LEGS)},
-                "foot_force_n": {leg: touch[n] for n, leg in enumerate(C.LEGS)},
-                "closure_residual_m": {leg: traj.closure_residual[k, i, n] for n, leg in enumerate(C.LEGS)},
+                "contacts": {leg: bool(touch[n] > 0) for n, leg in enumerate(self.legs)},
+                "foot_force_n": {leg: touch[n] for n, leg in enumerate(self.legs)},
+                "closure_residual_m": {
+                    leg: traj.closure_residual[k, i, n] for n, leg in enumerate(self.legs)
+                },
                 "base_height_m": traj.base_height[k, i],
                 "base_below_terrain": bool(traj.base_below_terrain[k, i]),
                 "done": bool(traj.done[k, i]),
@@ -438,38 +293,43 @@ _IMU_SCHEMA = {
         "linear_acceleration": _XYZ,
     },
 }
-_PER_LEG_VEC = {"type": "object", "properties": {leg: {"type": "array", "items": _NUM} for leg in C.LEGS}}
-_PER_LEG_NUM = {"type": "object", "properties": {leg: _NUM for leg in C.LEGS}}
-_STEP_SCHEMA = {
-    "title": "quadson.RolloutStep",
-    "type": "object",
-    "properties": {
-        "env": {"type": "integer"},
-        "episode_step": {"type": "integer"},
-        "episode_time_s": _NUM,
-        "command": {"type": "object", "properties": {k: _NUM for k in ("vx", "vy", "yaw_rate")}},
-        "base": {
-            "type": "object",
-            "properties": {
-                k: _NUM for k in ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
+
+
+def _step_schema(legs: Sequence[str]) -> dict:
+    """The JSON schema of /rollout/step for a robot with these legs."""
+    per_leg_vec = {"type": "object", "properties": {leg: {"type": "array", "items": _NUM} for leg in legs}}
+    per_leg_num = {"type": "object", "properties": {leg: _NUM for leg in legs}}
+    return {
+        "title": "quadson.RolloutStep",
+        "type": "object",
+        "properties": {
+            "env": {"type": "integer"},
+            "episode_step": {"type": "integer"},
+            "episode_time_s": _NUM,
+            "command": {"type": "object", "properties": {k: _NUM for k in ("vx", "vy", "yaw_rate")}},
+            "base": {
+                "type": "object",
+                "properties": {
+                    k: _NUM
+                    for k in ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
+                },
             },
+            "observation": {"type": "array", "items": _NUM},
+            "action": {"type": "array", "items": _NUM},
+            "foot_targets": per_leg_vec,
+            "motor_targets": per_leg_vec,
+            "reward": {"type": "object", "additionalProperties": _NUM},
+            "contacts": {"type": "object", "properties": {leg: {"type": "boolean"} for leg in legs}},
+            "foot_force_n": per_leg_num,
+            "closure_residual_m": per_leg_num,
+            "base_height_m": _NUM,
+            "base_below_terrain": {"type": "boolean"},
+            "done": {"type": "boolean"},
+            "fall": {"type": "boolean"},
+            "off_field": {"type": "boolean"},
+            "nan_reset": {"type": "boolean"},
         },
-        "observation": {"type": "array", "items": _NUM},
-        "action": {"type": "array", "items": _NUM},
-        "foot_targets": _PER_LEG_VEC,
-        "motor_targets": _PER_LEG_VEC,
-        "reward": {"type": "object", "additionalProperties": _NUM},
-        "contacts": {"type": "object", "properties": {leg: {"type": "boolean"} for leg in C.LEGS}},
-        "foot_force_n": _PER_LEG_NUM,
-        "closure_residual_m": _PER_LEG_NUM,
-        "base_height_m": _NUM,
-        "base_below_terrain": {"type": "boolean"},
-        "done": {"type": "boolean"},
-        "fall": {"type": "boolean"},
-        "off_field": {"type": "boolean"},
-        "nan_reset": {"type": "boolean"},
-    },
-}
+    }
 
 
 def step_time_ns(step_index: int, ctrl_dt: float) -> int:
@@ -501,13 +361,15 @@ def record(
         raise ValueError(f"a rollout needs n_envs >= 1 and n_steps >= 1, got {n_envs} and {n_steps}")
     from quadson_mjx import rollout as qrollout
     from quadson_mjx.config import to_json
-    from quadson_mjx.training import versions
+    from quadson_mjx.provenance import versions
 
     ctrl_dt = env.ctrl_dt
     falls = nan_resets = off_field = 0
     # command: (3,) for all envs or (n_envs, 3), one per env
     command_text = "sampled per env" if command is None else json.dumps(np.asarray(command, float).tolist())
-    with RolloutWriter(path, env.mj_model, n_envs, ctrl_dt, overwrite=overwrite, viz_envs=viz_envs) as w:
+    with RolloutWriter(
+        path, env.mj_model, n_envs, ctrl_dt, env.robot.legs, overwrite=overwrite, viz_envs=viz_envs
+    ) as w:
         info = {
             "controller": controller.name,
             "n_envs": n_envs,
@@ -563,67 +425,3 @@ def record(
             f"end: {falls} fall(s), {off_field} at the field's edge, {nan_resets} non-finite reset(s)",
         )
     return {"steps": n_steps, "falls": falls, "off_field": off_field, "nan_resets": nan_resets}
-
-
-def layout_json(env: int = 0) -> str:
-    """A Foxglove layout (foxglove.layouts) for rollout files: the 3D view following env{env}/base,
-    plots of base velocity against the command, roll/pitch, foot forces, closure residual, reward,
-    and the /log panel. eval/foxglove_layout.json is this text for env 0."""
-    import foxglove.layouts as fl
-
-    def series(path: str, label: str) -> fl.PlotSeries:
-        return fl.PlotSeries(value=f"/rollout/step{{env=={env}}}.{path}", label=label)
-
-    def plot(title: str, items) -> fl.SplitItem:
-        return fl.SplitItem(
-            content=fl.PlotPanel(
-                title=title,
-                config=fl.PlotConfig(paths=[series(p, lbl) for p, lbl in items], show_legend=True),
-            )
-        )
-
-    three_d = fl.ThreeDeePanel(
-        title="robot",
-        config=fl.ThreeDeeConfig(
-            follow_tf=f"env{env}/base",
-            fixed_frame="world",
-            follow_mode="follow-position",
-            camera_state=fl.ThreeDeeCameraState(distance=1.2, phi=60.0, theta_offset=45.0, perspective=True),
-        ),
-    )
-    plots = fl.SplitContainer(
-        direction="column",
-        items=[
-            plot(
-                "base velocity [m/s, rad/s]",
-                [
-                    ("base.vx", "vx"),
-                    ("command.vx", "command vx"),
-                    ("base.wz", "yaw rate"),
-                    ("command.yaw_rate", "command yaw rate"),
-                ],
-            ),
-            plot("orientation [rad]", [("base.roll", "roll"), ("base.pitch", "pitch")]),
-            plot("foot normal force [N]", [(f"foot_force_n.{leg}", leg) for leg in C.LEGS]),
-            plot("closure residual [m]", [(f"closure_residual_m.{leg}", leg) for leg in C.LEGS]),
-            plot("reward", [("reward.total", "total")]),
-        ],
-    )
-    left = fl.SplitContainer(
-        direction="column",
-        items=[
-            fl.SplitItem(proportion=3, content=three_d),
-            fl.SplitItem(proportion=1, content=fl.LogPanel(title="falls and resets")),
-        ],
-    )
-    layout = fl.Layout(
-        content=fl.SplitContainer(
-            direction="row",
-            items=[fl.SplitItem(proportion=3, content=left), fl.SplitItem(proportion=2, content=plots)],
-        )
-    )
-    return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"
-
-
-if __name__ == "__main__":  # python -m quadson_mjx.foxglove_mcap > eval/foxglove_layout.json
-    print(layout_json(), end="")

@@ -337,10 +337,10 @@ def test_report_reads_the_rollout_file(rollout_file, messages):
 def test_shipped_foxglove_layout_is_the_generated_one():
     from pathlib import Path
 
-    from quadson_mjx.foxglove_mcap import layout_json
+    from quadson_mjx.foxglove_layout import layout_json
 
     shipped = Path(__file__).resolve().parents[1] / "eval" / "foxglove_layout.json"
-    assert shipped.read_text() == layout_json()
+    assert shipped.read_text() == layout_json(C.LEGS)
     layout = json.loads(shipped.read_text())
     text = json.dumps(layout)
     assert '"panelType": "ThreeDee"' in text and '"followTf": "env0/base"' in text
@@ -370,7 +370,7 @@ def test_writer_draws_only_viz_envs_but_logs_every_env(env, tmp_path):
     )  # fmt: skip
     traj.obs[0, 2, 5] = np.nan  # JSON gets null, not NaN
     path = tmp_path / "viz.mcap"
-    with RolloutWriter(path, m, B, CTRL_DT, viz_envs=1) as w:
+    with RolloutWriter(path, m, B, CTRL_DT, env.robot.legs, viz_envs=1) as w:
         w.write_scene()
         for k in range(T):
             w.write_step(step_time_ns(k, CTRL_DT), traj, k)
