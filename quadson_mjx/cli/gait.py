@@ -1,10 +1,11 @@
 """Run a gait open loop in the closed-chain model on CPU MuJoCo and report seed 003 Table II's numbers.
 
-    python eval/gait.py                          # trot at its seed speed, 10 s, flat ground
-    python eval/gait.py --gait all               # walk, trot, pace, bound, gallop
-    python eval/gait.py --gait walk --vx 0.05 --vy 0.02 --yaw-rate 0.1 --swing cycloid
-    python eval/gait.py --gait trot_discontinuous --json runs/gait_eval.json
-    python eval/gait.py --robot caramel --scene rough --yaw-rate 0.25 --vx 0   # seed 003's trot on Caramel
+    quadson-gait                          # trot at its seed speed, 10 s, flat ground
+    quadson-gait --gait all               # walk, trot, pace, bound, gallop
+    quadson-gait --gait walk --vx 0.05 --vy 0.02 --yaw-rate 0.1 --swing cycloid
+    quadson-gait --gait trot_discontinuous --json runs/gait_eval.json
+    quadson-gait --robot caramel --scene rough --yaw-rate 0.25 --vx 0   # seed 003's trot on Caramel
+(`python eval/gait.py ...` runs the same command.)
 
 Each control step (50 Hz by default) the gait's foot targets go through the five-bar IK
 (quadson_mjx.gait.motor_targets) into the position-controlled motors; no feedback. The robot starts
@@ -25,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import jax
@@ -33,13 +33,11 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx import fivebar  # noqa: E402
-from quadson_mjx import gait as G  # noqa: E402
-from quadson_mjx.quat import quat_to_rpy  # noqa: E402
-from quadson_mjx.robots.quadson import model as M  # noqa: E402
-from quadson_mjx.swing import SWING_SHAPES  # noqa: E402
+from quadson_mjx.quat import quat_to_rpy
+from quadson_mjx.robots.quadson import fivebar
+from quadson_mjx.robots.quadson import gait as G
+from quadson_mjx.robots.quadson import model as M
+from quadson_mjx.swing import SWING_SHAPES
 
 FIVE = ("walk", "trot", "pace", "bound", "gallop")
 MIN_HEIGHT_M = 0.1

@@ -1,7 +1,8 @@
 """Seed 000's five gaits: open loop, gait + PID and gait + policy, over many randomized episodes.
 
-    python eval/gaits.py --runs results/gaits                 # every gait with a run in results/gaits/<gait>
-    python eval/gaits.py --gaits walk,bound --envs 10 --seconds 5 --json runs/gaits.json
+    quadson-gaits --runs results/gaits                 # every gait with a run in results/gaits/<gait>
+    quadson-gaits --gaits walk,bound --envs 10 --seconds 5 --json runs/gaits.json
+(`python eval/gaits.py ...` runs the same command.)
 
 For each gait, the controllers `gait` (open loop), `pid` (gait + seed 003's roll/pitch stabilizer)
 and, where RUNS/<gait> holds a trained run, `policy` each walk --envs episodes of --seconds (seed
@@ -23,17 +24,16 @@ from pathlib import Path
 
 import jax
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx import gait_eval  # noqa: E402
-from quadson_mjx import rollout as R  # noqa: E402
-from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env import LocomotionEnv  # noqa: E402
-from quadson_mjx.env_config import GAIT_RECIPES, SEED_EPISODE_S, env_config, with_added_keys  # noqa: E402
+from quadson_mjx import gait_eval
+from quadson_mjx import rollout as R
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import GAIT_RECIPES, SEED_EPISODE_S, env_config, with_added_keys
+from quadson_mjx.tasks import FAST_PHYSICS
 
 FIVE = ("walk", "trot", "pace", "bound", "gallop")
-# the training presets' physics (train/ppo_mjx.py FAST_PHYSICS), for gaits without a run
-TRAINING_PHYSICS = {"base_terrain_contact": False, "joint_limits": False}
+# the training presets' physics, for gaits without a run
+TRAINING_PHYSICS = FAST_PHYSICS
 
 
 def parse(argv):

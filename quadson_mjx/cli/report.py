@@ -1,6 +1,7 @@
 """Compare controllers from rollout MCAP files: markdown tables (seed 000 and seed 003 metrics) and PNGs.
 
-    python eval/report.py runs/compare/*.mcap --out-dir runs/compare
+    quadson-report runs/compare/*.mcap --out-dir runs/compare
+(`python eval/report.py ...` runs the same command.)
 
 Writes OUT_DIR/report.md (seed 000 and seed 003 tables, command tracking: RMS error per axis, falls,
 time the base spent in the ground; per commanded value for the command sweep), OUT_DIR/report.json and, when matplotlib is installed (the `report` extra),
@@ -15,9 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx import report as R  # noqa: E402
+from quadson_mjx import report as R
 
 
 def plot(trials, out_dir: Path) -> list[Path]:

@@ -1,9 +1,10 @@
 """Headless rollouts of a controller to MCAP files that open in Foxglove.
 
-    python eval/rollout.py --controller gait --seconds 3                    # gait alone, flat ground
-    python eval/rollout.py --controller pid --terrain rough --envs 10 --out runs/pid_rough.mcap
-    python eval/rollout.py --run runs/20261121-101500 --vx 0.2 --yaw-rate 0.25
-    python eval/rollout.py --suite --out-dir runs/compare [--run RUN_DIR]   # the comparison set
+    quadson-rollout --controller gait --seconds 3                    # gait alone, flat ground
+    quadson-rollout --controller pid --terrain rough --envs 10 --out runs/pid_rough.mcap
+    quadson-rollout --run runs/20261121-101500 --vx 0.2 --yaw-rate 0.25
+    quadson-rollout --suite --out-dir runs/compare [--run RUN_DIR]   # the comparison set
+(`python eval/rollout.py ...` runs the same command.)
 
 Controllers: `gait` (zero action), `pid` (gait + seed 003's roll/pitch stabilizer), or a trained
 policy from a run directory (`--run`, newest checkpoint unless `--checkpoint`). All environments
@@ -35,14 +36,13 @@ from pathlib import Path
 import jax
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx import foxglove_mcap, gait  # noqa: E402
-from quadson_mjx import rollout as R  # noqa: E402
-from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env import LocomotionEnv  # noqa: E402
-from quadson_mjx.env_config import env_config, with_added_keys  # noqa: E402
-from quadson_mjx.robots import ROBOT_NAMES  # noqa: E402
+from quadson_mjx import foxglove_mcap
+from quadson_mjx import rollout as R
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import env_config, with_added_keys
+from quadson_mjx.robots import ROBOT_NAMES
+from quadson_mjx.robots.quadson import gait
 
 SUITE_YAW_RATE = 0.25  # rad/s, seed 003's turning test
 # the command sweep: the joystick range of the issue, a 5 x 3 x 5 grid (75 envs, one command each)

@@ -1,8 +1,9 @@
 """Seed 003's experiments (Tables I, II, III) on the Caramel model in CPU MuJoCo, next to the paper.
 
-    python eval/caramel_seed003.py                       # 30 / 10 / 10 samples, as the paper
-    python eval/caramel_seed003.py --samples-1 5 --samples-23 2 --json runs/caramel_seed003.json
-    python eval/caramel_seed003.py --run results/caramel/policy   # + rows of a trained policy
+    quadson-seed003                       # 30 / 10 / 10 samples, as the paper
+    quadson-seed003 --samples-1 5 --samples-23 2 --json runs/caramel_seed003.json
+    quadson-seed003 --run results/caramel/policy   # + rows of a trained policy
+(`python eval/caramel_seed003.py ...` runs the same command.)
 
 Writes a JSON of the measured and published numbers and prints markdown tables (mean +- sample std).
 The experiments themselves are quadson_mjx.seed003.
@@ -16,9 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx import seed003 as E  # noqa: E402
+from quadson_mjx import seed003 as E
 
 
 def _cell(pair, scale=1.0, digits=3) -> str:
@@ -69,7 +68,8 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> dict:
+def run(argv=None) -> dict:
+    """The command line `argv` run: -> the result dict that --json writes."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--samples-1", type=int, default=30, help="samples per test of Table I")
     ap.add_argument("--samples-23", type=int, default=10, help="samples per test of Tables II and III")
@@ -102,5 +102,10 @@ def main(argv=None) -> dict:
     return result
 
 
+def main(argv=None) -> int:
+    run(argv)
+    return 0
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,17 +1,19 @@
 """Train a foot-offset policy for Quadson or Caramel with brax PPO on MJX.
 
-    python train/ppo_mjx.py                                   # the real job (small preset on a CPU)
-    python train/ppo_mjx.py --ppo.num_timesteps=50000000 --env.reward.forward_target=0.4
-    python train/ppo_mjx.py --preset test --run-dir runs/smoke
-    python train/ppo_mjx.py --resume runs/20261121-101500
-    python train/ppo_mjx.py --gait bound --run-dir results/gaits/bound   # a gait's recipe
-    python train/ppo_mjx.py --robot caramel --env-preset command --terrain rough   # seed 003's robot
+    quadson-train                                             # the real job (small preset on a CPU)
+    quadson-train --ppo.num_timesteps=50000000 --env.reward.forward_target=0.4
+    quadson-train --preset test --run-dir runs/smoke
+    quadson-train --resume runs/20261121-101500
+    quadson-train --task QuadsonGaitBound --run-dir results/gaits/bound     # a gait's recipe
+    quadson-train --task CaramelCommandRough                  # seed 003's robot
+    quadson-train --list-tasks                                # the registered tasks and their flags
 
-Env options: --env-preset seed|command|robust (seed 000's formulation; + velocity commands;
-the joystick recipe with domain randomization and pushes). --gait G trains seed 000's gait G with its
-recipe (env_config.GAIT_RECIPES: the gait's speed as target, the contact-pattern reward, domain
-randomization) on top of the env preset. Any config key can be overridden with --env.KEY=VALUE or
---ppo.KEY=VALUE; an unknown key is an error naming it.
+(`python train/ppo_mjx.py ...` runs the same command.) A task (quadson_mjx.tasks) names a robot, an
+env preset, a terrain and a gait recipe; the flags --robot, --env-preset seed|command|robust (seed
+000's formulation; + velocity commands; the joystick recipe with domain randomization and pushes),
+--terrain and --gait G (seed 000's gait G with its recipe, env_config.GAIT_RECIPES: the gait's speed
+as target, the contact-pattern reward, domain randomization) spell the same configs. Any config key
+can be overridden with --env.KEY=VALUE or --ppo.KEY=VALUE; an unknown key is an error naming it.
 """
 
 from __future__ import annotations
@@ -25,25 +27,13 @@ from pathlib import Path
 
 import jax
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from quadson_mjx import tasks, training
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env_config import GAIT_RECIPES, check_env_config
+from quadson_mjx.robots import ROBOT_NAMES
 
-from quadson_mjx import training  # noqa: E402
-from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env_config import GAIT_RECIPES, check_env_config, env_config  # noqa: E402
-from quadson_mjx.robots import ROBOT_NAMES  # noqa: E402
-
-# Training physics of every preset: feet-only ground contact and no joint-limit rows (the episode
-# ends before the base reaches the ground; the IK keeps targets in range): 28 constraint rows
-# instead of 56, +18 % environment steps/s at 8192 worlds on one H100
-# (benchmarks/physics_vs_go1.py; the box-heightfield collision on rough ground costs far more).
-FAST_PHYSICS = {"base_terrain_contact": False, "joint_limits": False}
-ENV_PRESETS = {
-    "seed": {**FAST_PHYSICS},
-    "command": {**FAST_PHYSICS, "command_tracking": True},
-    # the joystick recipe (commands resampled every 4-8 s, 10 % zero, the sweep's range, base-in-ground
-    # termination) with randomization and pushes
-    "robust": {**FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
-}
+# the flags a task stands for, with their defaults
+TASK_FLAG_DEFAULTS = {"robot": "quadson", "env_preset": "seed", "terrain": "flat", "gait": None}
 
 
 def parse(argv):
@@ -53,14 +43,20 @@ def parse(argv):
     p.add_argument(
         "--preset", default=None, help="ppo preset: gpu, cpu or test (default: gpu if a GPU is present)"
     )
-    p.add_argument("--env-preset", default="seed", choices=sorted(ENV_PRESETS))
+    p.add_argument(
+        "--task",
+        default=None,
+        metavar="NAME",
+        help="a registered task (--list-tasks); instead of --robot, --env-preset, --terrain, --gait",
+    )
+    p.add_argument("--list-tasks", action="store_true", help="print the registered tasks and exit")
+    # default None: given or not matters next to --task and --resume (TASK_FLAG_DEFAULTS fill in)
+    p.add_argument("--env-preset", default=None, choices=sorted(tasks.ENV_PRESETS), help="(default: seed)")
     p.add_argument(
         "--gait-action", action="store_true", help="let the policy also scale step length and cycle time"
     )
-    p.add_argument("--terrain", default="flat", choices=["flat", "rough"])
-    p.add_argument(
-        "--robot", default="quadson", choices=list(ROBOT_NAMES), help="the robot (default: %(default)s)"
-    )
+    p.add_argument("--terrain", default=None, choices=list(tasks.TERRAINS), help="(default: flat)")
+    p.add_argument("--robot", default=None, choices=list(ROBOT_NAMES), help="the robot (default: quadson)")
     p.add_argument(
         "--gait",
         default=None,
@@ -91,6 +87,25 @@ def parse(argv):
     return args, rest
 
 
+def task_flags_given(args) -> list[str]:
+    """The flags of a task that the command line set (--robot quadson counts, though the default)."""
+    return [
+        f"--{key.replace('_', '-')} {getattr(args, key)}"
+        for key in TASK_FLAG_DEFAULTS
+        if getattr(args, key) is not None
+    ]
+
+
+def list_tasks() -> str:
+    """One line per task: its name and the flags that spell the same config."""
+    width = max(map(len, tasks.task_names()))
+    lines = []
+    for name, flags in tasks.TASK_FLAGS.items():
+        spelled = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in flags.items() if v is not None)
+        lines.append(f"{name:{width}s}  {spelled}")
+    return "\n".join(lines)
+
+
 def _terminate(signum, frame):
     """SIGTERM (a cluster scheduler's preemption, `kill`) ends the script like Ctrl-C. While
     `training.train` runs it defers both to its next safe point (log closed, state saved)."""
@@ -99,6 +114,16 @@ def _terminate(signum, frame):
 
 def main(argv=None) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
+    if args.list_tasks:
+        print(list_tasks())
+        return 0
+    if args.task is not None and task_flags_given(args):
+        given = ", ".join(task_flags_given(args))
+        print(
+            f"--task {args.task} names the robot, env preset, terrain and gait: remove {given}",
+            file=sys.stderr,
+        )
+        return 2
     signal.signal(signal.SIGTERM, _terminate)
     if not args.no_compile_cache:
         training.enable_compilation_cache(args.compile_cache)
@@ -109,11 +134,12 @@ def main(argv=None) -> int:
         options = [
             name
             for name, given in (
+                ("--task", args.task is not None),
                 ("--gait", args.gait is not None),
                 ("--gait-action", args.gait_action),
-                ("--env-preset", args.env_preset != "seed"),
-                ("--terrain", args.terrain != "flat"),
-                ("--robot", args.robot != "quadson"),
+                ("--env-preset", args.env_preset not in (None, "seed")),
+                ("--terrain", args.terrain not in (None, "flat")),
+                ("--robot", args.robot not in (None, "quadson")),
                 ("--preset", args.preset is not None),
                 ("--run-dir", args.run_dir is not None),
             )
@@ -137,11 +163,13 @@ def main(argv=None) -> int:
         if not on_gpu and args.preset is None:
             print("No GPU found: running the small 'cpu' preset (minutes). Use a GPU for the real job.")
         try:
-            recipe = {"gait": args.gait, "gait_recipe": True} if args.gait else {}
-            env_cfg = env_config(
-                terrain=args.terrain, robot=args.robot, **ENV_PRESETS[args.env_preset], **recipe
-            )
-            env_cfg.gait_action = args.gait_action
+            if args.task is not None:
+                env_cfg = tasks.make_task_config(args.task)
+                env_cfg.gait_action = args.gait_action
+            else:
+                flags = {k: getattr(args, k) for k in TASK_FLAG_DEFAULTS}
+                flags = {k: d if flags[k] is None else flags[k] for k, d in TASK_FLAG_DEFAULTS.items()}
+                env_cfg = tasks.config_from_flags(**flags, gait_action=args.gait_action)
             env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
             ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
             env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")

@@ -1,0 +1,239 @@
+"""The task registry (quadson_mjx.tasks) and the train command's --task: names, messages, and the same
+config whichever way a task is spelled. No MJX compile: configs only (train's main with a fake train)."""
+
+import itertools
+import json
+import signal
+from pathlib import Path
+
+import pytest
+
+from quadson_mjx import tasks, training
+from quadson_mjx.cli import train as train_cli
+from quadson_mjx.config import apply_overrides, to_json
+from quadson_mjx.env_config import check_env_config, env_config, with_added_keys
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# The names, written out (the registry derives them from robot x preset x terrain and the recipes).
+NAMES = [
+    "QuadsonFlat", "QuadsonRough", "QuadsonCommandFlat", "QuadsonCommandRough",
+    "QuadsonJoystickFlat", "QuadsonJoystickRough",
+    "CaramelFlat", "CaramelRough", "CaramelCommandFlat", "CaramelCommandRough",
+    "CaramelJoystickFlat", "CaramelJoystickRough",
+    "QuadsonGaitWalk", "QuadsonGaitTrot", "QuadsonGaitPace", "QuadsonGaitBound", "QuadsonGaitGallop",
+]  # fmt: skip
+
+# train/ppo_mjx.py's presets and its config construction before the registry (commit e0e1084),
+# copied: the reference the registry and the new flag path must reproduce.
+OLD_FAST_PHYSICS = {"base_terrain_contact": False, "joint_limits": False}
+OLD_ENV_PRESETS = {
+    "seed": {**OLD_FAST_PHYSICS},
+    "command": {**OLD_FAST_PHYSICS, "command_tracking": True},
+    "robust": {**OLD_FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
+}
+
+
+def old_script_config(robot, env_preset, terrain, gait, gait_action):
+    recipe = {"gait": gait, "gait_recipe": True} if gait else {}
+    env_cfg = env_config(terrain=terrain, robot=robot, **OLD_ENV_PRESETS[env_preset], **recipe)
+    env_cfg.gait_action = gait_action
+    return env_cfg
+
+
+# Committed run directories -> (task, overrides): the saved env config (keys added since, with
+# their old values) is the task's config with these overrides.
+COMMITTED_RUNS = {
+    "results/policy_h100_joystick": ("QuadsonJoystickRough", []),
+    "results/gaits/walk": ("QuadsonGaitWalk", []),
+    "results/gaits/trot": ("QuadsonGaitTrot", []),
+    "results/gaits/pace": ("QuadsonGaitPace", []),
+    "results/gaits/bound": ("QuadsonGaitBound", []),
+    "results/gaits/gallop": ("QuadsonGaitGallop", []),
+    # trained with --robot caramel --env-preset command --terrain rough --env.randomize=true
+    "results/caramel/policy": ("CaramelCommandRough", ["randomize=true"]),
+    # trained before the training physics (FAST_PHYSICS): the base box touched the ground and the
+    # motor joints had limit rows
+    "results/policy_h200_seed": ("QuadsonFlat", ["base_terrain_contact=true", "joint_limits=true"]),
+}
+
+
+def test_registry_names():
+    assert tasks.task_names() == NAMES
+    assert list(tasks.TASKS) == list(tasks.TASK_FLAGS) == NAMES
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_task_is_a_locked_valid_config(name):
+    cfg = tasks.make_task_config(name)
+    assert cfg.is_locked
+    check_env_config(cfg)
+    assert cfg.base_terrain_contact is False and cfg.joint_limits is False  # the training physics
+    assert cfg.robot == name[:7].lower()
+    assert cfg.terrain in name.lower() or "Gait" in name
+    with pytest.raises(AttributeError):
+        cfg.new_key = 1
+    assert tasks.find_task(cfg) == name
+
+
+def test_task_contents_by_hand():
+    joystick = tasks.make_task_config("QuadsonJoystickRough")
+    assert (
+        joystick.terrain == "rough" and joystick.command_tracking and joystick.randomize and joystick.pushes
+    )
+    assert joystick.command_resample_s == (4.0, 8.0) and joystick.termination.base_below_terrain
+    bound = tasks.make_task_config("QuadsonGaitBound")
+    assert bound.gait == "bound" and bound.randomize and bound.reward.target_gait_speed
+    assert bound.terrain == "flat" and not bound.command_tracking
+    caramel = tasks.make_task_config("CaramelCommandRough")
+    assert caramel.robot == "caramel" and caramel.command_tracking and not caramel.randomize
+
+
+@pytest.mark.parametrize(
+    "name, close",
+    [
+        ("QuadsonJoystikRough", "QuadsonJoystickRough"),
+        ("quadsonflat", "QuadsonFlat"),
+        ("GaitBound", "QuadsonGaitBound"),
+    ],
+)
+def test_unknown_task_names_the_closest(name, close):
+    with pytest.raises(ValueError, match=f"unknown task '{name}'; did you mean .*{close}"):
+        tasks.make_task_config(name)
+
+
+def test_unknown_task_far_from_any_lists_them_all():
+    with pytest.raises(ValueError, match="choose from QuadsonFlat, .*QuadsonGaitGallop"):
+        tasks.make_task_config("xyz")
+
+
+COMBINATIONS = list(
+    itertools.product(
+        ("quadson", "caramel"), ("seed", "command", "robust"), ("flat", "rough"),
+        (None, "walk", "trot", "pace", "bound", "gallop"), (False, True),
+    )
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("robot, env_preset, terrain, gait, gait_action", COMBINATIONS)
+def test_flags_give_the_old_scripts_config(robot, env_preset, terrain, gait, gait_action):
+    flags = dict(robot=robot, env_preset=env_preset, terrain=terrain, gait=gait, gait_action=gait_action)
+    try:
+        want = old_script_config(**flags)
+    except ValueError as e:  # Caramel has no gait recipes: both refuse
+        with pytest.raises(ValueError, match=str(e)[:30]):
+            tasks.config_from_flags(**flags)
+        return
+    got = tasks.config_from_flags(**flags)
+    assert to_json(got) == to_json(want) and got.is_locked
+
+
+def _fake_train(monkeypatch):
+    """train's main up to training.train: -> dict that receives the env config it would train."""
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume):
+        seen["env_cfg"] = env_cfg
+        raise Stop
+
+    monkeypatch.setattr(training, "train", fake_train)
+    sigterm = signal.getsignal(signal.SIGTERM)
+
+    def run(argv):
+        try:
+            with pytest.raises(Stop):
+                train_cli.main([*argv, "--no-compile-cache", "--preset", "test"])
+        finally:
+            signal.signal(signal.SIGTERM, sigterm)
+        return seen.pop("env_cfg")
+
+    return run
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_train_task_and_flag_spellings_give_one_config(name, monkeypatch, tmp_path):
+    run = _fake_train(monkeypatch)
+    flags = tasks.TASK_FLAGS[name]
+    argv = [a for k, v in flags.items() if v is not None for a in (f"--{k.replace('_', '-')}", v)]
+    by_task = run(["--task", name, "--run-dir", str(tmp_path / "a")])
+    by_flags = run([*argv, "--run-dir", str(tmp_path / "b")])
+    assert to_json(by_task) == to_json(by_flags) == to_json(tasks.make_task_config(name))
+    assert to_json(by_flags) == to_json(old_script_config(gait_action=False, **{"gait": None, **flags}))
+    if flags["robot"] == "quadson":  # Caramel's gait cannot be scaled (check_env_config refuses)
+        with_action = run(["--task", name, "--gait-action", "--run-dir", str(tmp_path / "c")])
+        assert to_json(with_action) == to_json(
+            run(["--gait-action", *argv, "--run-dir", str(tmp_path / "d")])
+        )
+        assert with_action.gait_action is True
+
+
+def test_train_defaults_are_quadson_flat(monkeypatch, tmp_path):
+    cfg = _fake_train(monkeypatch)(["--run-dir", str(tmp_path / "run")])
+    assert to_json(cfg) == to_json(tasks.make_task_config("QuadsonFlat"))
+
+
+@pytest.mark.parametrize(
+    "extra, named",
+    [
+        (["--robot", "quadson"], "--robot quadson"),
+        (["--env-preset", "robust"], "--env-preset robust"),
+        (["--terrain", "flat"], "--terrain flat"),
+        (["--gait", "bound"], "--gait bound"),
+    ],
+)
+def test_train_task_with_task_flags_is_one_line_and_exit_2(extra, named, monkeypatch, capsys):
+    monkeypatch.setattr(training, "train", lambda *a, **k: pytest.fail("nothing may train"))
+    assert train_cli.main(["--task", "QuadsonFlat", *extra, "--no-compile-cache"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--task QuadsonFlat" in err and named in err, err
+
+
+def test_train_unknown_task_exits_2_naming_the_closest(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr(training, "train", lambda *a, **k: pytest.fail("nothing may train"))
+    sigterm = signal.getsignal(signal.SIGTERM)
+    try:
+        rc = train_cli.main(
+            ["--task", "QuadsonJoystikRough", "--no-compile-cache", "--run-dir", str(tmp_path)]
+        )
+    finally:
+        signal.signal(signal.SIGTERM, sigterm)
+    err = capsys.readouterr().err
+    assert rc == 2 and "QuadsonJoystickRough" in err and err.count("\n") == 1, err
+
+
+def test_train_resume_refuses_task(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr(training, "train", lambda *a, **k: pytest.fail("nothing may train"))
+    sigterm = signal.getsignal(signal.SIGTERM)
+    try:
+        rc = train_cli.main(["--resume", str(tmp_path), "--task", "QuadsonFlat", "--no-compile-cache"])
+    finally:
+        signal.signal(signal.SIGTERM, sigterm)
+    err = capsys.readouterr().err
+    assert rc == 2 and "--task" in err and "--resume" in err
+
+
+def test_list_tasks_prints_every_name_with_its_flags(capsys):
+    assert train_cli.main(["--list-tasks"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines] == NAMES
+    bound = lines[NAMES.index("QuadsonGaitBound")]
+    assert bound.split()[1:] == "--robot quadson --env-preset seed --terrain flat --gait bound".split()
+
+
+@pytest.mark.parametrize("run_dir", sorted(COMMITTED_RUNS))
+def test_committed_run_configs_are_tasks(run_dir):
+    task, overrides = COMMITTED_RUNS[run_dir]
+    saved = json.loads((ROOT / run_dir / "config.json").read_text())["env"]
+    want = apply_overrides(tasks.make_task_config(task), overrides)
+    assert to_json(with_added_keys(saved)) == to_json(want)
+    assert tasks.find_task(saved) == (None if overrides else task)
+    env_cfg, _ = training.load_run_config(ROOT / run_dir)  # and it loads as a run
+    assert to_json(with_added_keys(env_cfg)) == to_json(want)
+
+
+def test_every_committed_run_is_listed():
+    found = {str(p.parent.relative_to(ROOT)) for p in ROOT.glob("results/**/config.json")}
+    assert found == set(COMMITTED_RUNS)
