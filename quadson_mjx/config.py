@@ -2,17 +2,20 @@
 
 A config is an `ml_collections.ConfigDict` (a brax dependency already). Factories return it locked,
 so a typo can never add a new key silently; `apply_overrides` parses command-line style
-`--env.reward.forward_target=0.4` and raises on an unknown key or a value of the wrong type.
+`--env.reward.forward_target=0.4` with ml_collections' config_flags (absl flags) and raises on an
+unknown key or a value of the wrong type.
 """
 
 from __future__ import annotations
 
-import ast
 import difflib
 import json
+import re
 from collections.abc import Iterable, Mapping
 
 import ml_collections
+from absl import flags
+from ml_collections import config_flags
 
 ConfigDict = ml_collections.ConfigDict
 
@@ -31,54 +34,43 @@ def _flat_keys(cfg: Mapping, prefix: str = "") -> list[str]:
 # Keys whose value is a list of layer sizes: any depth may replace the default's.
 LAYER_SIZE_KEYS = ("policy_hidden", "value_hidden")
 
+# name of the one config flag apply_overrides defines: `key.sub=value` is parsed as --_cfg.key.sub=value
+_FLAG = "_cfg"
 
-def _parse_value(text: str, current, key: str):
-    """Parses `text` into the type of the current value; raises naming `key` on a mismatch."""
-    if isinstance(current, str):
-        return text
-    try:
-        value = ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        if text.lower() in ("true", "false"):
-            value = text.lower() == "true"
-        else:
-            raise ValueError(
-                f"config key '{key}': cannot parse {text!r} as {type(current).__name__}"
-            ) from None
-    if current is None:
+
+def _check_value(value, current, key: str, text: str):
+    """`value` (as config_flags parsed it) checked against the field's `current` value: the checks
+    config_flags leaves out. Returns the value to store (tuple elements as the default's types)."""
+    if not isinstance(current, tuple | list):
         return value
-    if isinstance(current, bool):
-        if not isinstance(value, bool):
-            raise ValueError(f"config key '{key}' takes true/false, got {text!r}")
-        return value
-    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if isinstance(value, int) and key.rsplit(".", 1)[-1] in LAYER_SIZE_KEYS:
-        value = (value,)  # one hidden layer, written without a trailing comma
-    if isinstance(current, tuple | list) and isinstance(value, tuple | list):
-        if key.rsplit(".", 1)[-1] in LAYER_SIZE_KEYS:
-            if not value or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value):
-                raise ValueError(f"config key '{key}' takes layer sizes (positive integers), got {text!r}")
-            return type(current)(value)
-        if len(value) != len(current):
-            raise ValueError(f"config key '{key}' takes {len(current)} values, got {len(value)}")
-        return type(current)(
-            float(v) if isinstance(c, float) else v for v, c in zip(value, current, strict=True)
-        )
-    if type(value) is not type(current):
-        raise ValueError(f"config key '{key}' takes a {type(current).__name__}, got {text!r}")
-    return value
+    if key.rsplit(".", 1)[-1] in LAYER_SIZE_KEYS:  # any depth; `64` means (64,)
+        if not value or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value):
+            raise ValueError(f"config key '{key}' takes layer sizes (positive integers), got {text!r}")
+        return type(current)(value)
+    if len(value) != len(current):  # config_flags takes a tuple of any length
+        raise ValueError(f"config key '{key}' takes {len(current)} values, got {len(value)}")
+    out = []
+    for v, c in zip(value, current, strict=True):
+        ok = type(v) is type(c) or (type(c) is float and type(v) is int)
+        if not ok:
+            raise ValueError(f"config key '{key}' takes values like {tuple(current)!r}, got {text!r}")
+        out.append(float(v) if type(c) is float else v)
+    return type(current)(out)
 
 
 def apply_overrides(cfg: ConfigDict, overrides: Iterable[str], prefix: str = "") -> ConfigDict:
     """Returns a copy of `cfg` with `key.sub=value` overrides applied (leading dashes allowed).
 
-    Raises ValueError naming the key for an unknown key (with the closest known ones), a missing
-    '=', or a value that does not parse as the type of the default. `prefix` (e.g. "env.") is put
-    before key names in messages, to name them as the user typed them.
+    Values are parsed by ml_collections' config_flags (absl flags) as the type of the default: a
+    bool takes true/false (also 1/0), a tuple `(0, 2)` or `0,2`. Raises ValueError naming the key for
+    an unknown key (with the closest known ones), a missing '=', a value that does not parse as the
+    type of the default, or a tuple of another length (layer-size keys, LAYER_SIZE_KEYS, take any
+    depth of positive integers; `64` is (64,)). Non-finite floats parse; the env and PPO config
+    checks refuse them. `prefix` (e.g. "env.") is put before key names in messages, to name them as
+    the user typed them. `cfg` itself is left as it is.
     """
-    out = ml_collections.ConfigDict(cfg.to_dict())
-    known = _flat_keys(out)
+    known = _flat_keys(cfg)
+    parsed = []  # (key, text)
     for item in overrides:
         body = item.lstrip("-")
         if "=" not in body:
@@ -88,11 +80,51 @@ def apply_overrides(cfg: ConfigDict, overrides: Iterable[str], prefix: str = "")
             close = difflib.get_close_matches(key, known, n=3)
             hint = f"; did you mean {', '.join(prefix + c for c in close)}?" if close else ""
             raise ValueError(f"unknown config key '{prefix}{key}'{hint}")
+        parsed.append((key, text))
+    data = cfg.to_dict()
+    current = {}
+    for key, _ in parsed:
+        *path, leaf = key.split(".")
+        node = data
+        for p in path:
+            node = node[p]
+        current[key] = node[leaf]
+        if node[leaf] is None:
+            raise ValueError(f"config key '{prefix}{key}' is None: no type to parse the value as")
+        if isinstance(node[leaf], list):  # config_flags overrides tuples, not lists
+            node[leaf] = tuple(node[leaf])
+    # DEFINE_config_dict keeps (and mutates) the ConfigDict it is given: a copy, never cfg
+    out = ml_collections.ConfigDict(data)
+    argv = ["apply_overrides", *(f"--{_FLAG}.{key}={text}" for key, text in parsed)]
+    fv = flags.FlagValues()
+    config_flags.DEFINE_config_dict(_FLAG, out, flag_values=fv, lock_config=True, sys_argv=argv)
+    try:
+        fv(argv)
+    except flags.Error as e:  # IllegalFlagValueError: "flag --_cfg.KEY=TEXT: why"
+        message = str(e)
+        match = re.search(rf"--{_FLAG}\.([^=\s]+)=", message)
+        key = match.group(1) if match else None
+        if key not in current:
+            raise ValueError(f"config keys {[prefix + k for k, _ in parsed]}: {message}") from None
+        text = dict(parsed)[key]
+        if isinstance(current[key], bool):
+            raise ValueError(f"config key '{prefix}{key}' takes true/false, got {text!r}") from None
+        why = message.split(": ", 1)[-1]
+        like = f"{type(current[key]).__name__} like {current[key]!r}"
+        raise ValueError(f"config key '{prefix}{key}' takes a {like}, got {text!r} ({why})") from None
+    out = fv[_FLAG].value
+    for key, text in parsed:
         *path, leaf = key.split(".")
         node = out
         for p in path:
             node = node[p]
-        node[leaf] = _parse_value(text, node[leaf], prefix + key)
+        value = _check_value(node[leaf], current[key], prefix + key, text)
+        if type(value) is not type(node[leaf]):  # a list field: unlock to store it as a list again
+            with node.unlocked():
+                node[leaf] = None
+                node[leaf] = value
+        else:
+            node[leaf] = value
     out.lock()
     return out
 

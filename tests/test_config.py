@@ -143,3 +143,68 @@ def test_conform_checks_types_and_keys_against_the_factory():
     ):
         with pytest.raises(ValueError, match=message):
             conform(data, ref, "env.", "f.json")
+
+
+def test_overrides_leave_the_given_config_alone_regression():
+    # Regression: config_flags' DEFINE_config_dict mutates the ConfigDict it is given; apply_overrides
+    # hands it a copy, so the caller's config (a task's, a loaded run's) keeps its values.
+    cfg = _cfg()
+    before = to_json(cfg)
+    out = apply_overrides(cfg, ["env.terrain=rough", "env.range=(0, 2)", "env.push=true"])
+    assert to_json(cfg) == before and cfg.is_locked
+    assert out.env.terrain == "rough" and out.is_locked
+    with pytest.raises(AttributeError):
+        out.env.new_key = 1  # locked: a typo cannot add a key
+
+
+@pytest.mark.parametrize(
+    "override, words",
+    [
+        ("env.num_legs=2.5", ["'env.num_legs'", "2.5"]),
+        ("env.push=maybe", ["'env.push' takes true/false", "maybe"]),
+        ("env.range=(1, 2, 3)", ["'env.range' takes 2 values, got 3"]),
+        ("env.range=0.5", ["'env.range' takes 2 values, got 1"]),  # config_flags reads 0.5 as (0.5,)
+        ("env.range=(0, 'a')", ["'env.range'", "(0, 'a')"]),
+        ("env.range=(0, True)", ["'env.range'"]),  # a bool is no number here
+        ("env.reward.forward_target=fast", ["'env.reward.forward_target'", "fast"]),
+    ],
+)
+def test_config_flags_errors_are_one_line_naming_the_key(override, words):
+    with pytest.raises(ValueError) as e:
+        apply_overrides(_cfg(), ["env.terrain=rough", override, "env.num_legs=3"])
+    message = str(e.value)
+    assert "\n" not in message and all(w in message for w in words), message
+
+
+def test_unknown_key_among_several_is_named_with_the_prefix():
+    # config_flags alone answers a bare AttributeError "'ax'"
+    with pytest.raises(ValueError, match=r"^unknown config key 'ppo.env.ax'; did you mean ppo.env.range\?$"):
+        apply_overrides(_cfg(), ["env.terrain=rough", "env.ax=1"], prefix="ppo.")
+
+
+def test_tuple_elements_take_the_defaults_types():
+    cfg = apply_overrides(_cfg(), ["env.range=(0, 2)"])
+    assert cfg.env.range == (0.0, 2.0) and all(type(v) is float for v in cfg.env.range)
+    cfg = apply_overrides(_cfg(), ["env.range=0.5,1"])  # config_flags' tuple syntax without brackets
+    assert cfg.env.range == (0.5, 1.0)
+
+
+def test_later_override_of_a_key_wins():
+    assert apply_overrides(_cfg(), ["env.num_legs=2", "env.num_legs=3"]).env.num_legs == 3
+
+
+def test_a_loaded_configs_lists_stay_lists():
+    # a config read back from JSON holds lists, which config_flags does not override
+    cfg = from_json('{"range": [0.0, 1.0], "hidden": [64, 64], "n": 1}')
+    out = apply_overrides(cfg, ["range=(0.5, 2)", "n=2"])
+    assert out.range == [0.5, 2.0] and out.hidden == [64, 64] and out.n == 2
+    assert cfg.range == [0.0, 1.0]
+
+
+def test_non_finite_values_parse_and_the_env_check_refuses_them():
+    from quadson_mjx.env_config import check_env_config, env_config
+
+    for text in ("nan", "inf", "-inf"):
+        cfg = apply_overrides(env_config(), [f"reward.forward_target={text}"])
+        with pytest.raises(ValueError, match=r"env\.reward\.forward_target must be finite"):
+            check_env_config(cfg)
