@@ -13,11 +13,42 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import importlib.metadata
+import re
 from collections.abc import Callable
 
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+# The versions these shims are tested with (pyproject.toml pins the same): brax exactly, jax from
+# JAX_LOWEST up to, not including, JAX_BELOW (0.10.2 on the CPU, 0.11.2 on the GPU machines). The
+# shims reach into brax PPO's internals, so another version gets an ImportError, not a wrong patch.
+BRAX_TESTED = "0.14.2"
+JAX_LOWEST = "0.10.2"
+JAX_BELOW = "0.12"
+TESTED_WITH = f"brax {BRAX_TESTED} and jax {JAX_LOWEST}-0.11.x"
+
+
+def _release(version: str) -> tuple[int, ...]:
+    """ "0.11.2" -> (0, 11, 2); the leading release numbers only ("0.5.0rc1" -> (0, 5, 0))."""
+    return tuple(int(n) for n in re.findall(r"\d+", re.match(r"[\d.]*", version).group().strip(".")))
+
+
+def check_versions(brax_version: str | None = None, jax_version: str | None = None) -> None:
+    """Raises ImportError in one line unless brax and jax (default: the installed ones) are the
+    tested versions above."""
+    brax_version = brax_version or importlib.metadata.version("brax")
+    jax_version = jax_version or jax.__version__
+    jax_ok = _release(JAX_LOWEST) <= _release(jax_version) < _release(JAX_BELOW)
+    if _release(brax_version) != _release(BRAX_TESTED) or not jax_ok:
+        raise ImportError(
+            f"quadson_mjx.compat is tested with {TESTED_WITH}; found brax {brax_version} and jax "
+            f"{jax_version}: install the pinned versions (pip install -e .)"
+        )
+
+
+check_versions()
 
 # brax PPO's pmap axis name (brax.training.agents.ppo.train._PMAP_AXIS_NAME). Arrays placed for
 # pmap must carry a sharding over a mesh axis of this name: jax's pmap gives its outputs exactly

@@ -208,3 +208,16 @@ def test_non_finite_values_parse_and_the_env_check_refuses_them():
         cfg = apply_overrides(env_config(), [f"reward.forward_target={text}"])
         with pytest.raises(ValueError, match=r"env\.reward\.forward_target must be finite"):
             check_env_config(cfg)
+
+
+def test_compat_refuses_an_untested_brax_or_jax(monkeypatch):
+    compat.check_versions()  # the installed ones are the tested ones
+    for brax_version, jax_version in (("0.14.2", "0.10.2"), ("0.14.2", "0.11.2"), ("0.14.2", "0.11.9")):
+        compat.check_versions(brax_version, jax_version)
+    for brax_version, jax_version in (("0.14.1", "0.10.2"), ("0.15.0", "0.11.2"), ("0.14.2", "0.10.1"), ("0.14.2", "0.12.0")):  # fmt: skip
+        with pytest.raises(ImportError, match=r"^quadson_mjx.compat is tested with brax 0.14.2 and jax 0.10.2-0.11.x; found") as e:  # fmt: skip
+            compat.check_versions(brax_version, jax_version)
+        assert f"brax {brax_version} and jax {jax_version}" in str(e.value) and "\n" not in str(e.value)
+    monkeypatch.setattr(jax, "__version__", "0.9.0")  # the installed jax's own string
+    with pytest.raises(ImportError, match="found brax .* and jax 0.9.0: install the pinned versions"):
+        compat.check_versions()
