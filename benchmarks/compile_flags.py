@@ -1,9 +1,9 @@
 """XLA compile time against run time of the environment's programs, per set of XLA flags, in one run.
 
-    python benchmarks/compile_flags.py --out benchmarks/results_compile_flags_h100.json
+    python benchmarks/compile_flags.py --out benchmarks/results/compile_flags_h100.json
 
 Each flag set runs in a fresh subprocess (XLA_FLAGS set before jax starts, no persistent
-compilation cache) that builds the main job's environment (`train/ppo_mjx.py`'s default preset:
+compilation cache) that builds the main job's environment (the train command's default task:
 Quadson, flat, seed gait, training physics) and compiles, ahead of time, the three programs that
 dominate the main job's compilation: the batched reset (8192 worlds), a 20-step unroll of the
 batched step with random actions (8192 worlds; the environment part of brax's training epoch) and a
@@ -21,8 +21,6 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-
 FLAG_SETS = {
     "default": "",
     "autotune0": "--xla_gpu_autotune_level=0",
@@ -33,7 +31,6 @@ FLAG_SETS = {
 
 
 def child(envs: int, eval_envs: int) -> dict:
-    sys.path.insert(0, str(ROOT))
     import jax
 
     from quadson_mjx.env import LocomotionEnv

@@ -15,19 +15,15 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import sys
 import time
 from pathlib import Path
 
 import jax
+from mujoco import mjx
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mujoco import mjx  # noqa: E402
-
-from quadson_mjx.env import LocomotionEnv  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
-from quadson_mjx.wrappers import wrap_for_training  # noqa: E402
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import env_config
+from quadson_mjx.wrappers import wrap_for_training
 
 
 def _time(fn, args, repeats):

@@ -1,7 +1,7 @@
 """Where an MJX physics step spends its time: each stage of `mjx.step`, per robot, in one run.
 
     python benchmarks/physics_stages.py --go1-scene PATH/scene_mjx_feetonly_flat_terrain.xml \
-        --envs 32768 --out benchmarks/results_physics_stages_h100.json
+        --envs 32768 --out benchmarks/results/physics_stages_h100.json
 
 Models: Playground's feet-only Go1 (as `physics_vs_go1.py` loads it, sensors on, as Playground
 trains it) and each robot's training physics (`LocomotionEnv`'s model under the train script's
@@ -20,26 +20,22 @@ from __future__ import annotations
 import argparse
 import copy
 import json
-import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import mujoco
+from mujoco import mjx
+from mujoco.mjx._src import collision_driver, constraint, forward, sensor, smooth, solver
+from physics_vs_go1 import NOISE_RAD, load_go1, run_meta
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import env_config
+from quadson_mjx.tasks import FAST_PHYSICS
 
-from mujoco import mjx  # noqa: E402
-from mujoco.mjx._src import collision_driver, constraint, forward, sensor, smooth, solver  # noqa: E402
-from physics_vs_go1 import NOISE_RAD, load_go1, run_meta  # noqa: E402
-
-from quadson_mjx.env import LocomotionEnv  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
-
-# The training physics of train/ppo_mjx.py (FAST_PHYSICS).
-TRAINING = {"base_terrain_contact": False, "joint_limits": False}
+# The training physics of every task (quadson_mjx.tasks.FAST_PHYSICS).
+TRAINING = FAST_PHYSICS
 
 # name -> change of Quadson's training model (MjModel attribute path -> value)
 VARIANTS = {

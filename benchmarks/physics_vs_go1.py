@@ -1,7 +1,7 @@
 """Our robots' MJX physics against MuJoCo Playground's feet-only Go1, in one run, per physics setting.
 
     python benchmarks/physics_vs_go1.py --go1-scene PATH/scene_mjx_feetonly_flat_terrain.xml \
-        --envs 8192 32768 --out benchmarks/results_physics_vs_go1_h100.json
+        --envs 8192 32768 --out benchmarks/results/physics_vs_go1_h100.json
 
 The anchor is Playground's `go1_mjx_feetonly.xml` flat scene (not part of this project: pass the path
 of a checkout's `mujoco_playground/_src/locomotion/go1/xmls/scene_mjx_feetonly_flat_terrain.xml`;
@@ -25,21 +25,17 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import mujoco
+from mujoco import mjx
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mujoco import mjx  # noqa: E402
-
-from quadson_mjx.env import LocomotionEnv  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
-from quadson_mjx.robots import ROBOT_NAMES  # noqa: E402
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import env_config
+from quadson_mjx.robots import ROBOT_NAMES
 
 NOISE_RAD = 0.1
 ACTION_RANGE = 0.2

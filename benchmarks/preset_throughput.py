@@ -13,17 +13,14 @@ import argparse
 import functools
 import sys
 import time
-from pathlib import Path
 
 import jax
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx.env import LocomotionEnv  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
-from quadson_mjx.randomize import randomization_fn  # noqa: E402
-from quadson_mjx.wrappers import wrap_for_training  # noqa: E402
-from train.ppo_mjx import ENV_PRESETS  # noqa: E402
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import env_config
+from quadson_mjx.randomize import randomization_fn
+from quadson_mjx.tasks import ENV_PRESETS
+from quadson_mjx.wrappers import wrap_for_training
 
 
 def steps_per_s(preset: str, terrain: str, n_envs: int, n_steps: int, repeats: int) -> tuple[float, float]:

@@ -10,18 +10,14 @@ best of --repeats. Prints one line per case; ratios within one run are what to c
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx.robots.quadson import model as qmodel  # noqa: E402
+from quadson_mjx.robots.quadson import model as qmodel
 
 
 def physics_rate(mj_model, n_envs: int, n_steps: int, repeats: int) -> float:

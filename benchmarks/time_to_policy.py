@@ -5,8 +5,8 @@ total wall-clock, start of the process to its end.
     python benchmarks/time_to_policy.py --name default --out results.json
     python benchmarks/time_to_policy.py --name fast --out results.json -- --ppo.num_minibatches=8
 
-Everything after `--` goes to `train/ppo_mjx.py`. The clock starts before the training process
-is launched (imports, compilation and evaluations included) and the evaluation times are the
+Everything after `--` goes to the train command (`quadson-train`, run as `python -m
+quadson_mjx.cli.train`). The clock starts before the training process is launched (imports, compilation and evaluations included) and the evaluation times are the
 log times of `/train/metrics` in the run's train.mcap. `--compile-cache DIR` is passed through,
 so two invocations with the same DIR measure a first and a second run. Results are appended to
 --out (JSON list), so one file collects the configurations of one session.
@@ -22,10 +22,9 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from quadson_mjx.mcap_check import recover_messages
 
-from quadson_mjx.mcap_check import recover_messages  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def evaluations(run_dir: Path) -> list[dict]:
@@ -60,7 +59,7 @@ def main(argv=None) -> int:
     args = p.parse_args(own)
 
     run_dir = Path(tempfile.mkdtemp(prefix="time_to_policy_")) / "run"
-    cmd = [sys.executable, str(ROOT / "train" / "ppo_mjx.py"), "--run-dir", str(run_dir), *train_args]
+    cmd = [sys.executable, "-m", "quadson_mjx.cli.train", "--run-dir", str(run_dir), *train_args]
     t0_ns = time.time_ns()
     with open(args.log or run_dir.parent / "train.log", "w") as log:
         rc = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)

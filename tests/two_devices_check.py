@@ -10,17 +10,14 @@ import json
 import logging
 import re
 import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from quadson_mjx import compat, training  # noqa: E402
-from quadson_mjx.config import apply_overrides  # noqa: E402
-from quadson_mjx.env_config import env_config  # noqa: E402
+from quadson_mjx import compat, training
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env_config import env_config
 
 COLLECTIVES = ("all-gather", "all-reduce", "all-to-all", "collective-permute", "reduce-scatter")
 
