@@ -97,7 +97,7 @@ def ik_point_numpy(x: float, y: float, z: float) -> np.ndarray:
 
 def valid_poses(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """n motor angles (within limits, toe-in guard, on the IK branch) and their feet, float64."""
-    from quadson_mjx import fivebar
+    from quadson_mjx.robots.quadson import fivebar
 
     rng = np.random.default_rng(seed)
     fk_j, ik_j = jax.jit(fivebar.leg_fk), jax.jit(fivebar.leg_ik)
@@ -155,7 +155,7 @@ def main() -> None:
     jax.config.update("jax_platforms", args.platform)
     jax.config.update("jax_enable_x64", True)  # a script: the reference comparison is float64
 
-    from quadson_mjx import fivebar
+    from quadson_mjx.robots.quadson import fivebar
 
     sizes = [int(float(s)) for s in args.sizes.split(",")]
     angles, feet = valid_poses(max(max(sizes), args.loop_points))

@@ -1,41 +1,35 @@
-"""Gait generators: leg phases, foot paths and motor targets, pure JAX, SI, batched.
+"""Gait machinery: leg phases, stance and swing foot paths from a velocity command, pure JAX, SI,
+batched. No robot inside: a robot's gait table, its neutral feet and its leg frames come as
+arguments (Quadson: quadson_mjx.robots.quadson.gait; Caramel: quadson_mjx.robots.caramel.gait).
 
-Seed 000 Algorithms 5-7 (phases, linear stance, Bezier swing) for the gaits of constants.GAITS,
-generalised from a fixed step to a body velocity command (vx, vy, yaw_rate), plus seed 003's
-cycloid swing with its P_T/P_N timing and its discontinuous trot. Feet are in the shoulder (leg)
-frames of constants.py: x along p1 -> p5, y up, z lateral; shapes (..., 4, 3) in LEGS order.
+Seed 000 Algorithms 5-7 (phases, linear stance, Bezier swing), generalised from a fixed step to a
+body velocity command (vx, vy, yaw_rate), plus seed 003's cycloid swing with its P_T/P_N timing and
+its discontinuous trot. Feet are (..., 4, 3) in the robot's leg ("gait") frames, whose "up" axis is
+the swing curves' +y (swing.py).
 
 A gait is a `GaitParams` pytree; every field may be a traced array (the swing shape and the
 discontinuous flag are selected with `where`), so a policy may scale step length or cycle time
-per environment. The environment's single entry point is `foot_targets`, then `motor_targets`.
+per environment.
 
 Per leg: phase = (t / cycle_s + phase_offset) mod 1 (Algorithm 5, as the robot's code). Stance
-while phase < duty: the foot moves on a straight line at ground height (y = -STANCE_HEIGHT) from
-p_start to p_end = p_start + step, at constant velocity step / (duty cycle_s). Swing otherwise:
-from p_end back to p_start over (1 - duty) cycle_s, on the curve of `swing` (see swing.py for
-shapes, apexes and lift-off/touchdown velocities). Positions are continuous at lift-off,
-touchdown and phase wrap-around; velocities are not: the stance foot moves at step / (duty T)
-while the cycloid starts and ends at rest and the Bezier starts with d/du = 1.5 (p_start - p_end)
-+ 3 h up (all shapes: see swing.py). A command that changes mid-step moves the foot with it.
+while phase < duty: the foot moves on a straight line at ground height from p_start to p_end =
+p_start + step, at constant velocity step / (duty cycle_s). Swing otherwise: from p_end back to
+p_start over (1 - duty) cycle_s, on the curve of `swing` (see swing.py for shapes, apexes and
+lift-off/touchdown velocities). Positions are continuous at lift-off, touchdown and phase
+wrap-around; velocities are not: the stance foot moves at step / (duty T) while the cycloid starts
+and ends at rest and the Bezier starts with d/du = 1.5 (p_start - p_end) + 3 h up (all shapes: see
+swing.py). A command that changes mid-step moves the foot with it.
 
 Step from a command: a stance foot moves relative to the body by -(v + w x r) * stance_time, with
 r the foot's body-frame position at mid-stance (the "neutral" point) and stance_time =
-duty * cycle_s; it is expressed in each shoulder frame with constants.SHOULDER_ROT (body lateral
-motion lands on the shoulder-frame z, which the leg reaches through motor 0). The neutral point
-is the middle of the seed's stance, (STANCE_START_X + STANCE_DIRECTION step_length_m / 2,
--STANCE_HEIGHT, 0), so that the command vx = seed_speed(params) = step_length_m / (duty cycle_s)
-reproduces Algorithm 6 (p_start = STANCE_START_X) up to float rounding.
+duty * cycle_s; it is expressed in each leg frame with the frame's rotation (Quadson: body lateral
+motion lands on the shoulder-frame z, which the leg reaches through motor 0).
 
 Discontinuous trot (seed 003): the body moves only while all four feet are down. With two leg
 pairs half a cycle apart and duty > 1/2 the cycle reads: body shift, FR+RL swing, body shift,
 FL+RR swing (each shift (duty - 1/2) cycle_s, each swing (1 - duty) cycle_s). A stance foot then
 moves only while the other pair is down too; the command is the mean body velocity, so the step
 is -(v + w x r) * cycle_s and the body moves at 1 / (2 duty - 1) times the command while it moves.
-
-Reach (tests/test_gait.py): at their seed speeds walk, trot, pace, bound and trot_discontinuous are
-inside the five-bar's workspace and limits along the whole cycle for every swing shape; the seed's
-gallop is not: its front stance ends at x = 17 cm, y = -20 cm, 26.25 cm from p1, beyond the
-p1-p2-foot chain's 26 cm (invalid for x > 16.61 cm, the last 1.9 % of the front legs' stance).
 """
 
 from __future__ import annotations
@@ -46,15 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from quadson_mjx import body, fivebar
 from quadson_mjx import swing as S
-from quadson_mjx.robots.quadson import constants as C
-
-# Seed 003's discontinuous trot: constants.DISCONTINUOUS_TROT (the numpy gait of deploy shares it).
-SEED_003_P_T = C.SEED_003_P_T
-SEED_003_P_N = C.SEED_003_P_N
-DISCONTINUOUS_TROT = C.DISCONTINUOUS_TROT
-GAIT_NAMES: tuple[str, ...] = (*C.GAITS, "trot_discontinuous")
 
 
 class GaitParams(NamedTuple):
@@ -69,20 +55,6 @@ class GaitParams(NamedTuple):
     p_t: float = 1.0  # seed 003 warp: fraction of the swing trajectory ...
     p_n: float = 1.0  # ... covered in this fraction of the swing time (1, 1: no warp)
     discontinuous: bool = False  # seed 003's discontinuous gait (body moves with all feet down)
-
-
-def gait_params(name: str, **overrides) -> GaitParams:
-    """The gait `name` (GAIT_NAMES) with field overrides; swing may be a name from SWING_SHAPES.
-
-    Raises ValueError on an unknown gait, an unknown field or inconsistent values.
-    """
-    if name == "trot_discontinuous":
-        base = dict(DISCONTINUOUS_TROT)
-    elif name in C.GAITS:
-        base = dict(C.GAITS[name])
-    else:
-        raise ValueError(f"unknown gait {name!r}; choose from {GAIT_NAMES}")
-    return params_from(base, **overrides)
 
 
 def params_from(base: dict, **overrides) -> GaitParams:
@@ -104,7 +76,7 @@ def params_from(base: dict, **overrides) -> GaitParams:
 
 
 def _check(p: GaitParams) -> None:
-    if p.phase_offset.shape != (C.NUM_LEGS,) or np.any((p.phase_offset < 0) | (p.phase_offset >= 1)):
+    if p.phase_offset.shape != (4,) or np.any((p.phase_offset < 0) | (p.phase_offset >= 1)):
         raise ValueError(f"phase_offset must be 4 values in [0, 1), got {p.phase_offset}")
     if not p.cycle_s > 0 or not 0 < p.duty < 1:
         raise ValueError(f"need cycle_s > 0 and 0 < duty < 1, got {p.cycle_s}, {p.duty}")
@@ -138,21 +110,19 @@ def leg_phases(t: jax.Array, params: GaitParams) -> jax.Array:
     return jnp.where(phase >= 1.0, 0.0, phase)  # x - floor(x) rounds up to 1 for tiny negative x
 
 
-def neutral_feet(params: GaitParams) -> jax.Array:
-    """Mid-stance foot of each leg: (4, 3) in the shoulder frames [m]."""
-    x = jnp.asarray(C.STANCE_START_X) + jnp.asarray(C.STANCE_DIRECTION) * (0.5 * params.step_length_m)
-    return jnp.stack([x, jnp.full_like(x, -C.STANCE_HEIGHT), jnp.zeros_like(x)], axis=-1)
-
-
-def step_vectors(command: jax.Array, params: GaitParams) -> jax.Array:
+def step_vectors(command: jax.Array, params: GaitParams, neutral, frame_pos, frame_rot) -> jax.Array:
     """Stance displacement of each foot relative to the body over one stance.
 
-    command: (..., 3) body velocity (vx [m/s], vy [m/s], yaw_rate [rad/s]), body frame ->
-    (..., 4, 3) p_end - p_start in each shoulder frame [m]: -(v + w x r_neutral) * stance_time.
+    command: (..., 3) body velocity (vx [m/s], vy [m/s], yaw_rate [rad/s]), body frame; neutral (4, 3)
+    mid-stance feet in the leg frames [m]; frame_pos (4, 3), frame_rot (4, 3, 3) the leg frames in the
+    body (quadson_mjx.pose) -> (..., 4, 3) p_end - p_start in each leg frame [m]:
+    -(v + w x r_neutral) * stance_time.
     """
     command = jnp.asarray(command, dtype=jnp.result_type(float))
-    rot = jnp.asarray(C.SHOULDER_ROT, command.dtype)  # (4, 3, 3) shoulder -> body
-    r = jnp.asarray(C.SHOULDER_POS, command.dtype) + jnp.einsum("lij,lj->li", rot, neutral_feet(params))
+    rot = jnp.asarray(frame_rot, command.dtype)  # (4, 3, 3) leg frame -> body
+    r = jnp.asarray(frame_pos, command.dtype) + jnp.einsum(
+        "lij,lj->li", rot, jnp.asarray(neutral, command.dtype)
+    )
     vx, vy, wz = command[..., 0:1], command[..., 1:2], command[..., 2:3]  # (..., 1)
     v_foot = jnp.stack([-(vx - wz * r[:, 1]), -(vy + wz * r[:, 0]), jnp.zeros_like(vx * r[:, 0])], -1)
     step_body = v_foot * _stance_time(params)  # (..., 4, 3) body frame
@@ -173,53 +143,19 @@ def stance_progress(phase: jax.Array, params: GaitParams) -> jax.Array:
     return jnp.clip(jnp.where(params.discontinuous, disc, cont), 0.0, 1.0)
 
 
-def foot_targets(t: jax.Array, command: jax.Array, params: GaitParams, body_offset=None) -> jax.Array:
+def feet_on_path(t: jax.Array, params: GaitParams, neutral, step) -> jax.Array:
     """Foot targets of the gait (seed 000 Algorithm 6, generalised to a velocity command).
 
-    t: (...) time [s]; command: (..., 3) (vx, vy [m/s], yaw_rate [rad/s]) in the body frame, or
-    (3,) for all; body_offset: None or (..., 6) body pose offset (x, y, z [m], roll, pitch, yaw
-    [rad]) applied through body kinematics (quadson_mjx.body), e.g. (0, 0, dz, roll, pitch, 0)
-    raises and tilts the body over feet that stay put in the world.
-    -> (..., 4, 3) feet in the shoulder frames [m], LEGS order.
+    t: (...) time [s]; neutral: (4, 3) mid-stance feet in the leg frames [m]; step: (..., 4, 3) the
+    stance displacement (`step_vectors`) -> (..., 4, 3) feet in the leg frames [m].
     """
     t = jnp.asarray(t, dtype=jnp.result_type(float))
     phase = leg_phases(t, params)  # (..., 4)
-    step = step_vectors(command, params)  # (..., 4, 3)
-    neutral = neutral_feet(params).astype(t.dtype)
+    neutral = jnp.asarray(neutral).astype(t.dtype)
     p_start = neutral - 0.5 * step
     p_end = neutral + 0.5 * step
     stance = p_start + stance_progress(phase, params)[..., None] * step
     u = jnp.clip((phase - params.duty) / (1.0 - params.duty), 0.0, 1.0)
     u = S.warp(u, params.p_t, params.p_n)
     swing = S.swing_point(u, p_end, p_start, params.step_height_m, params.swing)
-    feet = jnp.where((phase < params.duty)[..., None], stance, swing)
-    if body_offset is not None:
-        feet = apply_body_offset(feet, body_offset)
-    return feet
-
-
-def apply_body_offset(feet_shoulder: jax.Array, body_offset: jax.Array) -> jax.Array:
-    """Feet (..., 4, 3) in the shoulder frames of the nominal body -> the same world points in the
-    shoulder frames of a body displaced by body_offset (..., 6) (x, y, z, roll, pitch, yaw)."""
-    feet_shoulder = jnp.asarray(feet_shoulder)
-    nominal = jnp.zeros(feet_shoulder.shape[:-2] + (6,), feet_shoulder.dtype)
-    world = body.shoulder_to_world(nominal, feet_shoulder)
-    return body.world_to_shoulder(jnp.asarray(body_offset, feet_shoulder.dtype), world)
-
-
-def motor_targets(foot_targets_shoulder: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Five-bar IK (seed 000 Algorithm 2) for all legs, clamped into the motor limits.
-
-    foot_targets_shoulder: (..., 4, 3) [m] -> (angles (..., 4, 3) (t0, t1, t5) [rad], valid (..., 4)
-    bool). Where a target is invalid (out of reach, beyond a limit, toe-in guard, other branch)
-    the angles are clipped into constants.MOTOR_RANGES and t5 <= t1 + TOE_IN_MAX, never NaN;
-    jnp.sum(~valid) counts them.
-    """
-    angles, valid = fivebar.leg_ik(foot_targets_shoulder)
-    angles = jnp.nan_to_num(angles)
-    lo = jnp.asarray(C.MOTOR_RANGES[:, 0], angles.dtype)
-    hi = jnp.asarray(C.MOTOR_RANGES[:, 1], angles.dtype)
-    angles = jnp.clip(angles, lo, hi)
-    t5 = jnp.minimum(angles[..., 2], angles[..., 1] + C.TOE_IN_MAX)
-    angles = angles.at[..., 2].set(jnp.clip(t5, lo[2], hi[2]))
-    return angles, valid
+    return jnp.where((phase < params.duty)[..., None], stance, swing)

@@ -3,6 +3,7 @@ deterministic PNG encoder, so that regenerated model files are byte-identical to
 
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 
@@ -117,3 +118,42 @@ def scene(header: str, name: str, body_xml: str, center: str, extent: str, floor
   </worldbody>
 </mujoco>
 """
+
+
+# --- the stone field (seed 003's "ground formed by small loose stones"), one map for both robots ---
+STONE_FIELD_HALF_SIZE = (4.0, 4.0)  # half extents [m]
+STONE_FIELD_CELL = 0.04  # grid step [m]
+STONE_FIELD_SEED = 3
+
+
+def _stone_field_shape() -> tuple[int, int]:
+    hx, hy = STONE_FIELD_HALF_SIZE
+    return int(round(2 * hy / STONE_FIELD_CELL)) + 1, int(round(2 * hx / STONE_FIELD_CELL)) + 1
+
+
+def stone_field_heights() -> np.ndarray:
+    """(nrow, ncol) uint8 height map in [0, 255] of loose stones: seeded random round bumps of
+    3-8 cm diameter, as a fraction of the scene's relief (each robot sets its own: ROUGH_MAX_HEIGHT), the highest stone wins where they overlap; a flat
+    patch of 0.6 m around the origin lets the robot start on level ground."""
+    rng = np.random.default_rng(STONE_FIELD_SEED)
+    nrow, ncol = _stone_field_shape()
+    hx, hy = STONE_FIELD_HALF_SIZE
+    y = np.linspace(-hy, hy, nrow)[:, None]
+    x = np.linspace(-hx, hx, ncol)[None, :]
+    h = np.zeros((nrow, ncol))
+    n_stones = int(0.6 * (2 * hx) * (2 * hy) / 0.06**2)  # 0.6 stones per 6 x 6 cm: ~1/3 of the ground
+    cx = rng.uniform(-hx, hx, n_stones)
+    cy = rng.uniform(-hy, hy, n_stones)
+    rad = rng.uniform(0.015, 0.04, n_stones)
+    top = rng.uniform(0.2, 1.0, n_stones)
+    for i in range(n_stones):
+        r0 = int((cy[i] + hy) / STONE_FIELD_CELL)
+        c0 = int((cx[i] + hx) / STONE_FIELD_CELL)
+        k = int(math.ceil(rad[i] / STONE_FIELD_CELL)) + 1
+        rs, cs = slice(max(r0 - k, 0), r0 + k + 1), slice(max(c0 - k, 0), c0 + k + 1)
+        d2 = ((x[:, cs] - cx[i]) ** 2 + (y[rs] - cy[i]) ** 2) / rad[i] ** 2
+        bump = top[i] * np.sqrt(np.clip(1.0 - d2, 0.0, 1.0))  # a half-ellipsoid stone
+        h[rs, cs] = np.maximum(h[rs, cs], bump)
+    h[(np.abs(x) < 0.3) & (np.abs(y) < 0.3)] = 0.0
+    h[0, 0] = 1.0  # pin the full scale: MuJoCo normalizes a PNG height field to [0, 1]
+    return np.round(h * 255).astype(np.uint8)

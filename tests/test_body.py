@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from quadson_mjx import body
-from quadson_mjx import fivebar as fb
+from quadson_mjx.robots.quadson import body
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import fivebar as fb
 
 N = 2048
 w2s = jax.jit(jax.vmap(body.world_to_shoulder))

@@ -257,8 +257,8 @@ def test_caramel_rollout_mcap_of_the_trained_policy(caramel_run, tmp_path):
     the seed 003 experiments gives the step's own motor targets for the same state."""
     from quadson_mjx import mcap_check, training
     from quadson_mjx import rollout as R
-    from quadson_mjx.foxglove_mcap import record
     from quadson_mjx import seed003 as E
+    from quadson_mjx.foxglove_mcap import record
 
     _, run_dir = caramel_run
     policy, env_cfg, _, _ = training.load_policy(run_dir)

@@ -10,8 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from quadson_mjx import fivebar as fb
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import fivebar as fb
 
 L0, L1, L2, L3, L4, L5 = C.LINK_LENGTHS
 N = 4096  # one fixed batch size for the random tests: one compile per function and dtype

@@ -22,10 +22,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from quadson_mjx import body, fivebar
-from quadson_mjx import gait as G
 from quadson_mjx import swing as S
+from quadson_mjx.robots.quadson import body, fivebar
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import gait as G
 
 CM = 0.01
 # robots.md gait table: offsets FL/FR/RL/RR, cycle [s], duty, step height [cm], step length [cm]

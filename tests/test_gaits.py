@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from quadson_mjx import deploy, gait, gait_eval, gait_np
+from quadson_mjx import deploy, gait_eval
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
@@ -29,6 +29,7 @@ from quadson_mjx.env_config import (
     with_added_keys,
 )
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import gait, gait_np
 
 ROOT = Path(__file__).resolve().parents[1]
 GAIT_FIELDS = ("cycle_s", "duty", "step_height_m", "step_length_m", "swing", "p_t", "p_n", "discontinuous")
@@ -354,7 +355,7 @@ def test_footfall_lines_by_hand():
     # 2 steps, FL down in both, FR lifts at the second step; the table: FL stance, FR swing then stance
     contact = np.array([[1, 1, 0, 0], [1, 0, 0, 1]], bool)
     stance = np.array([[1, 0, 0, 0], [1, 1, 0, 1]], bool)
-    lines = gait_eval.footfall_lines(contact, stance)
+    lines = gait_eval.footfall_lines(contact, stance, ("FL", "FR", "RL", "RR"))
     assert lines == [
         "FL table ##",
         "FL feet  ##",

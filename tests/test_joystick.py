@@ -207,7 +207,7 @@ def test_gait_reach_over_the_joystick_range():
     # Pins the README's measurement: the trot's foot targets over one cycle (200 samples x 4 legs)
     # for a 9 x 5 x 9 grid over vx [-0.3, 0.5], vy [-0.2, 0.2], yaw rate [-0.8, 0.8]; the IK's
     # validity flags say which were clamped.
-    from quadson_mjx import gait
+    from quadson_mjx.robots.quadson import gait
 
     p = gait.gait_params("trot", swing="bezier_seed")
     t = jnp.linspace(0.0, float(p.cycle_s), 200, endpoint=False)

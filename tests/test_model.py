@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from quadson_mjx import fivebar
+from quadson_mjx import mjcf
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import fivebar
 from quadson_mjx.robots.quadson import model as qmodel
 
 CTRL_DT = 0.02
@@ -268,8 +269,8 @@ def test_every_scene_steps_without_warnings(scene):
 
 
 def test_rough_heights_seeded_and_shallow():
-    h = qmodel.rough_heights()
-    np.testing.assert_array_equal(h, qmodel.rough_heights())
+    h = mjcf.stone_field_heights()
+    np.testing.assert_array_equal(h, mjcf.stone_field_heights())
     m = qmodel.load_model("rough")
     relief = m.hfield_data.max() * m.hfield_size[0, 2]
     assert relief == pytest.approx(C.ROUGH_MAX_HEIGHT)

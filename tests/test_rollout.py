@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from quadson_mjx import fivebar, mcap_check
+from quadson_mjx import mcap_check
 from quadson_mjx import rollout as R
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.foxglove_mcap import record, step_time_ns
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import fivebar
 
 N_ENVS, N_STEPS, SEGMENT = 2, 6, 3
 CTRL_DT = 0.02

@@ -1,6 +1,8 @@
-"""One package per robot (the layout of mujoco_playground / mujoco_menagerie): constants, MJCF generator,
-gait and experiments of a robot live in its own folder (quadson/, caramel/); leg kinematics, gaits,
-swing curves, the stabilizer, the reward terms and the one environment (quadson_mjx.env) are shared.
+"""One package per robot (the layout of mujoco_playground / mujoco_menagerie): everything that is one
+robot's lives in its own folder: constants, MJCF generator, leg kinematics, body frames and gait
+table (quadson/: the five-bar legs; caramel/: seed 003's serial legs). The generic layers (the gait
+machinery, swing curves, serial-leg kinematics, the stabilizer, reward terms, the one environment
+quadson_mjx.env) take what they need from a `Robot` and never import one robot's constants.
 
 What the environment needs from a robot is a `Robot` (each folder's robot.py defines ROBOT): the model
 and the names in it, the home pose, the gait in the robot's own foot frames, and the mapping from foot
@@ -18,6 +20,7 @@ from typing import Any
 import numpy as np
 
 ROBOT_NAMES: tuple[str, ...] = ("quadson", "caramel")
+TERRAINS: tuple[str, ...] = ("flat", "rough")  # every robot's scenes: a plane, the stone field
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,7 +31,7 @@ class Robot:
 
     name: str
     legs: tuple[str, ...]  # leg order of every per-leg array
-    load_model: Callable[[str], Any]  # scene ("flat" | "rough") -> mujoco.MjModel
+    load_model: Callable[[str], Any]  # scene (TERRAINS) -> mujoco.MjModel
     model_xml_text: Callable[[str], str]  # scene -> robot and scene MJCF text (stored in logs)
     motor_joints: tuple[str, ...]  # the 12 observed joints, legs x motors order
     actuators: tuple[str, ...]  # the 12 actuators in the same order
@@ -46,6 +49,7 @@ class Robot:
     # closed chains: (model, site_xpos (..., nsite, 3)) -> (..., 4) gap of each leg's loop [m];
     # None for a robot without loops (Caramel)
     closure_residual: Callable | None
+    height_target_m: float  # base height the reward holds [m]
     gait_action: bool  # the gait may be scaled per step by the policy (traced step length, cycle)
     env_defaults: Mapping[str, Any]  # env config values of this robot, dotted keys (env_config)
 

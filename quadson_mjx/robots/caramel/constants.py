@@ -125,7 +125,7 @@ INTEGRATOR = "Euler"
 
 # --- rough ground: Quadson's seeded loose-stone height map, at Caramel's scale ---------------------
 # Seed 003's uneven terrain is "small loose stones" (Fig. 8b, no size given). The height map is
-# quadson_mjx.robots.quadson.model.rough_heights() (8 x 8 m, stones 3-8 cm across, a flat 0.6 x 0.6 m patch at the
+# quadson_mjx.mjcf.stone_field_heights() (8 x 8 m, stones 3-8 cm across, a flat 0.6 x 0.6 m patch at the
 # origin); Caramel's scene scales its relief to 2 cm (assumed: less than half the 5 cm step height).
 ROUGH_MAX_HEIGHT = 0.02  # [m]
 

@@ -24,8 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from quadson_mjx import body, serial, swing
 from quadson_mjx import gait as base_gait
+from quadson_mjx import pose, serial, swing
 from quadson_mjx.robots.caramel import constants as C
 
 PHASES_PER_CYCLE = 4  # swing A, shift, swing B, shift
@@ -101,7 +101,7 @@ def tilt_feet(feet: jax.Array, roll_pitch: jax.Array) -> jax.Array:
     body rotated by roll_pitch (..., 2) [rad] about its centre (R = Ry(pitch) Rx(roll)): R^T f."""
     roll_pitch = jnp.asarray(roll_pitch)
     rpy = jnp.concatenate([roll_pitch, jnp.zeros_like(roll_pitch[..., :1])], axis=-1)
-    rot = body.body_rotation(rpy)  # (..., 3, 3) Rz(0) Ry Rx
+    rot = pose.body_rotation(rpy)  # (..., 3, 3) Rz(0) Ry Rx
     return jnp.einsum("...ji,...lj->...li", rot, feet)  # R^T f for each foot
 
 
@@ -164,9 +164,9 @@ def gait_params(name: str = "trot_discontinuous", **overrides) -> base_gait.Gait
 
 
 def _rot_z_jnp(theta: jax.Array) -> jax.Array:
-    """theta (...) -> (..., 3, 3) rotation about z (body.body_rotation of yaw theta)."""
+    """theta (...) -> (..., 3, 3) rotation about z (pose.body_rotation of yaw theta)."""
     zero = jnp.zeros_like(theta)
-    return body.body_rotation(jnp.stack([zero, zero, theta], axis=-1))
+    return pose.body_rotation(jnp.stack([zero, zero, theta], axis=-1))
 
 
 def foot_targets(t: jax.Array, command: jax.Array, params: base_gait.GaitParams) -> jax.Array:

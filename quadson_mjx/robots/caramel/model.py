@@ -23,8 +23,6 @@ import numpy as np
 from quadson_mjx import mjcf, serial
 from quadson_mjx.mjcf import num, png_gray8, vec
 from quadson_mjx.robots.caramel import constants as C
-from quadson_mjx.robots.quadson import constants as quadson_constants
-from quadson_mjx.robots.quadson import model as quadson_model
 
 MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "caramel"
 SCENES = {"flat": "scene.xml", "rough": "scene_rough.xml"}
@@ -189,9 +187,9 @@ def scene_xml() -> str:
 
 
 def scene_rough_xml() -> str:
-    """Text of models/caramel/scene_rough.xml: Quadson's seeded loose-stone height map (8 x 8 m, flat
+    """Text of models/caramel/scene_rough.xml: the seeded loose-stone height map of both robots (mjcf.stone_field_heights) (8 x 8 m, flat
     0.6 m patch at the origin) with Caramel's relief ROUGH_MAX_HEIGHT."""
-    size = (*quadson_constants.ROUGH_SIZE, C.ROUGH_MAX_HEIGHT, 0.05)
+    size = (*mjcf.STONE_FIELD_HALF_SIZE, C.ROUGH_MAX_HEIGHT, 0.05)
     return mjcf.scene(
         _HEADER, "caramel scene", _BODY_XML, "0 0 0.12", "0.5", _FLOOR_CONTACT, (ROUGH_PNG, size)
     )
@@ -203,7 +201,7 @@ def model_files() -> dict[str, bytes]:
         _BODY_XML: robot_xml().encode(),
         SCENES["flat"]: scene_xml().encode(),
         SCENES["rough"]: scene_rough_xml().encode(),
-        ROUGH_PNG: png_gray8(quadson_model.rough_heights()),
+        ROUGH_PNG: png_gray8(mjcf.stone_field_heights()),
     }
 
 

@@ -27,12 +27,12 @@ ROBOT = Robot(
     motor_targets=gait.joint_targets,
     tilt_feet=gait.tilt_feet,
     closure_residual=None,
+    height_target_m=model.HOME_BASE_HEIGHT,  # 0.18 m, base origin at home
     gait_action=False,  # the trot's tick table needs a fixed phase length
     env_defaults={
         "swing": "cycloid",  # seed 003's (Quadson's default is the seed 000 Bezier)
         # offsets up to +-3 cm: a quarter of a 12 cm link (Quadson's 5 cm on 20 cm legs)
         "action_scale_m": 0.03,
-        "reward.height_target": model.HOME_BASE_HEIGHT,  # 0.18 m, base origin at home
         "reward.target_gait_speed": True,  # without commands: the trot's own 0.05 m/s forward
         # kernels sized to the 0.05 m/s gait: standing still under a 0.05 m/s command earns
         # exp(-0.78) = 46 % of the tracking reward (Quadson's 0.25 would give 98 %)

@@ -4,7 +4,7 @@ Sources: the seed document "Quadson" (Spring 2025) and the robot's public code a
 publish centimetres; they are converted here once. Nothing else in the project hard-codes a
 length, a limit, a leg order or a model name.
 
-Frames (used everywhere in the project, also written down in the README):
+Frames (used everywhere in the project, also written down in docs/kinematics.md):
   * world: z up, gravity -z (MuJoCo's convention).
   * body: origin at the body centre, x forward, y left, z up.
   * shoulder (leg) frame, one per leg, as in the seed: origin at p1 (motor 1's axis), x along the
@@ -220,7 +220,5 @@ CLOSURE_SOLREF = (0.008, 1.0)  # (time constant [s] = 2 SIM_DT, the stiffest MuJ
 CLOSURE_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
 
 # --- rough terrain (seed 003's "ground formed by small loose stones") ---
-ROUGH_SIZE = (4.0, 4.0)  # half extents [m]
-ROUGH_CELL = 0.04  # grid step [m]
+# the stone field's map is both robots' (quadson_mjx.mjcf.stone_field_heights); its relief is each robot's
 ROUGH_MAX_HEIGHT = 0.04  # relief [m]
-ROUGH_SEED = 3

@@ -14,7 +14,6 @@ and the passive joints read knee2 = theta2 - t1, knee4 = theta4 - t5 (`fivebar.l
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,9 +22,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from quadson_mjx import fivebar, mjcf
+from quadson_mjx import mjcf
 from quadson_mjx.mjcf import num, png_gray8, vec
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import fivebar
 
 MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "quadson"
 SCENES = {"flat": "scene.xml", "rough": "scene_rough.xml"}
@@ -250,43 +250,10 @@ def scene_xml() -> str:
 
 def scene_rough_xml() -> str:
     """Text of models/quadson/scene_rough.xml: the robot on a seeded height field of loose stones."""
-    size = (*C.ROUGH_SIZE, C.ROUGH_MAX_HEIGHT, 0.05)
+    size = (*mjcf.STONE_FIELD_HALF_SIZE, C.ROUGH_MAX_HEIGHT, 0.05)
     return mjcf.scene(
         _HEADER, "quadson scene", _BODY_XML, "0 0 0.15", "0.6", _FLOOR_CONTACT, (ROUGH_PNG, size)
     )
-
-
-def _rough_shape() -> tuple[int, int]:
-    hx, hy = C.ROUGH_SIZE
-    return int(round(2 * hy / C.ROUGH_CELL)) + 1, int(round(2 * hx / C.ROUGH_CELL)) + 1
-
-
-def rough_heights() -> np.ndarray:
-    """(nrow, ncol) uint8 height map in [0, 255] of loose stones: seeded random round bumps of
-    3-8 cm diameter, up to ROUGH_MAX_HEIGHT, the highest stone wins where they overlap; a flat
-    patch of 0.6 m around the origin lets the robot start on level ground."""
-    rng = np.random.default_rng(C.ROUGH_SEED)
-    nrow, ncol = _rough_shape()
-    hx, hy = C.ROUGH_SIZE
-    y = np.linspace(-hy, hy, nrow)[:, None]
-    x = np.linspace(-hx, hx, ncol)[None, :]
-    h = np.zeros((nrow, ncol))
-    n_stones = int(0.6 * (2 * hx) * (2 * hy) / 0.06**2)  # 0.6 stones per 6 x 6 cm: ~1/3 of the ground
-    cx = rng.uniform(-hx, hx, n_stones)
-    cy = rng.uniform(-hy, hy, n_stones)
-    rad = rng.uniform(0.015, 0.04, n_stones)
-    top = rng.uniform(0.2, 1.0, n_stones)
-    for i in range(n_stones):
-        r0 = int((cy[i] + hy) / C.ROUGH_CELL)
-        c0 = int((cx[i] + hx) / C.ROUGH_CELL)
-        k = int(math.ceil(rad[i] / C.ROUGH_CELL)) + 1
-        rs, cs = slice(max(r0 - k, 0), r0 + k + 1), slice(max(c0 - k, 0), c0 + k + 1)
-        d2 = ((x[:, cs] - cx[i]) ** 2 + (y[rs] - cy[i]) ** 2) / rad[i] ** 2
-        bump = top[i] * np.sqrt(np.clip(1.0 - d2, 0.0, 1.0))  # a half-ellipsoid stone
-        h[rs, cs] = np.maximum(h[rs, cs], bump)
-    h[(np.abs(x) < 0.3) & (np.abs(y) < 0.3)] = 0.0
-    h[0, 0] = 1.0  # pin the full scale: MuJoCo normalizes a PNG height field to [0, 1]
-    return np.round(h * 255).astype(np.uint8)
 
 
 def model_files() -> dict[str, bytes]:
@@ -295,7 +262,7 @@ def model_files() -> dict[str, bytes]:
         _BODY_XML: robot_xml().encode(),
         SCENES["flat"]: scene_xml().encode(),
         SCENES["rough"]: scene_rough_xml().encode(),
-        ROUGH_PNG: png_gray8(rough_heights()),
+        ROUGH_PNG: png_gray8(mjcf.stone_field_heights()),
     }
 
 

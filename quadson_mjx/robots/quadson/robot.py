@@ -5,10 +5,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from quadson_mjx import gait
 from quadson_mjx.robots import Robot
 from quadson_mjx.robots.quadson import constants as C
-from quadson_mjx.robots.quadson import model
+from quadson_mjx.robots.quadson import gait, model
 
 
 def tilt_feet(feet, roll_pitch):
@@ -41,6 +40,7 @@ ROBOT = Robot(
     motor_targets=gait.motor_targets,
     tilt_feet=tilt_feet,
     closure_residual=closure_residual,
+    height_target_m=C.STANCE_HEIGHT,  # seed 000's 0.2 m
     gait_action=True,
     env_defaults={},  # env_config's defaults are Quadson's
 )
