@@ -31,58 +31,14 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
-from quadson_mjx import gait, rewards, terrain
+from quadson_mjx import commands, gait, obs_spec, rewards, sensors, terrain
 from quadson_mjx.config import freeze
-from quadson_mjx.env_config import (
-    CONES,
-    JACOBIANS,
-    SOLVERS,
-    check_env_config,
-    env_config,
-    env_gait,
-    with_added_keys,
-)
+from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_added_keys
+from quadson_mjx.env_model import BASE_GEOM, base_bottom_points, name_ids, put_model, training_model
+from quadson_mjx.quat import quat_rotate, quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.robots import get_robot
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no state of either robot is this fast; treat it as a blown-up solve
-
-
-def quat_to_rpy(quat):
-    """quat (..., 4) wxyz -> (..., 3) roll, pitch, yaw [rad], ZYX convention."""
-    w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
-    roll = jnp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
-    yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return jnp.stack([roll, pitch, yaw], axis=-1)
-
-
-def quat_rotate(quat, vec):
-    """Rotates vec (..., 3) from the frame of quat (..., 4, wxyz) into the world frame."""
-    w, u = quat[..., :1], quat[..., 1:]
-    t = 2.0 * jnp.cross(u, vec)
-    return vec + w * t + jnp.cross(u, t)
-
-
-def base_bottom_points(half_size, n_x: int = 5, n_y: int = 3) -> np.ndarray:
-    """(n_x * n_y, 3) grid over the bottom face of a box of half_size (3,) [m], box frame: where a
-    tilted box meets a height field first (its lowest points are on that face up to 90 deg of tilt)."""
-    hx, hy, hz = half_size
-    x, y = np.meshgrid(np.linspace(-hx, hx, n_x), np.linspace(-hy, hy, n_y), indexing="ij")
-    return np.stack([x.ravel(), y.ravel(), np.full(x.size, -hz)], axis=-1)
-
-
-def quat_rotate_inverse(quat, vec):
-    """Rotates world-frame vec (..., 3) into the frame of quat (..., 4, wxyz): a rotation by the
-    conjugate quaternion (negating its vector part is exact, so results are unchanged)."""
-    return quat_rotate(quat * jnp.array([1.0, -1.0, -1.0, -1.0], quat.dtype), vec)
-
-
-def _name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray:
-    ids = np.array([mujoco.mj_name2id(model, objtype, n) for n in names], dtype=np.int64)
-    missing = [n for n, i in zip(names, ids, strict=True) if i < 0]
-    if missing:
-        raise KeyError(f"{objtype.name} {missing} not in the model")
-    return ids
 
 
 class _PhysicsState(NamedTuple):
@@ -120,22 +76,10 @@ class LocomotionEnv(Env):
         check_env_config(cfg)
         self._config = freeze(cfg)
         self._robot = robot = get_robot(cfg.robot)
-        self._mj_model = robot.load_model(cfg.terrain)
-        # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
-        # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
-        self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
-        if not cfg.base_terrain_contact:
-            base_geom = mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
-            self._mj_model.geom_contype[base_geom] = 0
-            self._mj_model.geom_conaffinity[base_geom] = 0
-        if not cfg.joint_limits:
-            self._mj_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
-        self._mj_model.opt.cone = CONES[cfg.cone]
-        self._mj_model.opt.solver = SOLVERS[cfg.solver]
-        self._mj_model.opt.jacobian = JACOBIANS[cfg.jacobian]
-        self.sys = mjx.put_model(self._mj_model, impl=cfg.impl)
+        self._mj_model = training_model(robot, cfg)
+        self.sys = put_model(self._mj_model, cfg.impl)
         self._field = terrain.heightfield(self._mj_model)
-        base_geom = mujoco.mj_name2id(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
+        base_geom = int(name_ids(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, [BASE_GEOM])[0])
         if not np.allclose(self._mj_model.geom_quat[base_geom], (1, 0, 0, 0)):
             raise ValueError("base_collision must be aligned with the base body")
         self._base_bottom = jnp.asarray(
@@ -147,23 +91,25 @@ class LocomotionEnv(Env):
         if n_sub < 1 or abs(n_sub * sim_dt - cfg.ctrl_dt) > 1e-9:
             raise ValueError(f"ctrl_dt {cfg.ctrl_dt} s is not a multiple of the model timestep {sim_dt} s")
         self._n_substeps = n_sub
+        self._obs_spec = obs_spec.locomotion_observation(robot.legs, robot.motor_joints, cfg.command_tracking)
+        self._action_spec = obs_spec.locomotion_action(robot.legs, cfg.gait_action, cfg.action_scale_m)
         self._ctrl_dt = float(cfg.ctrl_dt)
         self.episode_length = int(round(cfg.episode_length_s / cfg.ctrl_dt))
 
         m = self._mj_model
-        motor_joints = _name_ids(m, mujoco.mjtObj.mjOBJ_JOINT, robot.motor_joints)
+        motor_joints = name_ids(m, mujoco.mjtObj.mjOBJ_JOINT, robot.motor_joints)
         self._motor_qpos = jnp.asarray(m.jnt_qposadr[motor_joints])  # (12,) legs x motors order
         # (12,) ctrl index of each motor
-        self._actuator_of_motor = jnp.asarray(_name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators))
-        self._base_body = int(_name_ids(m, mujoco.mjtObj.mjOBJ_BODY, [robot.root_body])[0])
-        key = int(_name_ids(m, mujoco.mjtObj.mjOBJ_KEY, [robot.home_keyframe])[0])
+        self._actuator_of_motor = jnp.asarray(name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators))
+        self._base_body = int(name_ids(m, mujoco.mjtObj.mjOBJ_BODY, [robot.root_body])[0])
+        key = int(name_ids(m, mujoco.mjtObj.mjOBJ_KEY, [robot.home_keyframe])[0])
         self._home_qpos = jnp.asarray(m.key_qpos[key])
         self._home_ctrl = jnp.asarray(m.key_ctrl[key])
         self._home_feet = jnp.asarray(robot.home_feet, jnp.float32)  # (4, 3) gait frames [m]
         self._gait = env_gait(cfg)
         self._seed_speed = float(gait.seed_speed(self._gait))
         self._forward_target = self._seed_speed if cfg.reward.target_gait_speed else cfg.reward.forward_target
-        self._foot_geoms = jnp.asarray(_name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
+        self._foot_geoms = jnp.asarray(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
         root = int(m.body_jntadr[self._base_body])
         self._root_q = int(m.jnt_qposadr[root])
         self._root_v = int(m.jnt_dofadr[root])
@@ -177,11 +123,20 @@ class LocomotionEnv(Env):
     # --- brax Env interface -------------------------------------------------------------------
     @property
     def observation_size(self) -> int:
-        return 29 + (3 if self._config.command_tracking else 0)
+        return self.obs_spec.size
 
     @property
     def action_size(self) -> int:
-        return 12 + (2 if self._config.gait_action else 0)
+        return self.action_spec.size
+
+    @property
+    def obs_spec(self) -> obs_spec.Spec:
+        """The observation, entry by entry (quadson_mjx.obs_spec): what `_get_obs` assembles."""
+        return self._obs_spec
+
+    @property
+    def action_spec(self) -> obs_spec.Spec:
+        return self._action_spec
 
     @property
     def backend(self) -> str:
@@ -219,27 +174,9 @@ class LocomotionEnv(Env):
         return self._ctrl_dt
 
     def sample_command(self, rng):
-        """-> (command (3,) vx [m/s], vy [m/s], yaw rate [rad/s], seconds until the next one).
-
-        Uniform over command_range, zero with probability command_zero_prob; the timer is
-        U(command_resample_s), or +inf when resampling is off ((0, 0)). Without command_tracking: the
-        gait's seed-speed forward walk, never resampled."""
-        cfg = self._config
-        if not cfg.command_tracking:
-            return jnp.array([self._seed_speed, 0.0, 0.0]), jnp.array(jnp.inf)
-        k_cmd, k_zero, k_timer = jax.random.split(rng, 3)
-        r = cfg.command_range
-        lo = jnp.array([r.vx[0], r.vy[0], r.yaw_rate[0]])
-        hi = jnp.array([r.vx[1], r.vy[1], r.yaw_rate[1]])
-        command = jax.random.uniform(k_cmd, (3,), minval=lo, maxval=hi)
-        if cfg.command_zero_prob > 0:
-            command = jnp.where(jax.random.bernoulli(k_zero, cfg.command_zero_prob), 0.0, command)
-        lo_s, hi_s = cfg.command_resample_s
-        if hi_s > 0:
-            timer = jax.random.uniform(k_timer, (), minval=lo_s, maxval=hi_s)
-        else:
-            timer = jnp.array(jnp.inf)
-        return command, timer
+        """-> (command (3,) vx [m/s], vy [m/s], yaw rate [rad/s], seconds until the next one):
+        commands.sample_command of the config (without command_tracking: the gait's seed-speed walk)."""
+        return commands.sample_command(self._config, self._seed_speed, rng)
 
     def episode_info(self, rng):
         """What is sampled anew for every episode: command and its timer, latency, push timer. rng: key."""
@@ -416,20 +353,10 @@ class LocomotionEnv(Env):
         return gait.leg_phases(gait_progress * self._gait.cycle_s, self._gait) < self._gait.duty
 
     def _maybe_push(self, data, info):
-        cfg = self._config
-        info["push_timer"] = info["push_timer"] - self._ctrl_dt
-        rng, k_dir, k_speed, k_next = jax.random.split(info["rng"], 4)
-        push_now = info["push_timer"] <= 0.0
-        angle = jax.random.uniform(k_dir, (), maxval=2 * jnp.pi)
-        speed = jax.random.uniform(k_speed, (), minval=cfg.push.speed_mps[0], maxval=cfg.push.speed_mps[1])
-        kick = jnp.where(push_now, speed, 0.0) * jnp.array([jnp.cos(angle), jnp.sin(angle)])
-        data = data.replace(qvel=data.qvel.at[:2].add(kick))
-        next_timer = jax.random.uniform(
-            k_next, (), minval=cfg.push.interval_s[0], maxval=cfg.push.interval_s[1]
+        info["push_timer"], kick, info["rng"] = commands.push(
+            self._config.push, info["push_timer"] - self._ctrl_dt, info["rng"]
         )
-        info["push_timer"] = jnp.where(push_now, next_timer, info["push_timer"])
-        info["rng"] = rng
-        return data, info
+        return data.replace(qvel=data.qvel.at[:2].add(kick)), info
 
     def ground_height(self, xy):
         """xy (..., 2) world [m] -> (...,) height of the ground there [m] (0 on the flat scene)."""
@@ -455,43 +382,31 @@ class LocomotionEnv(Env):
         return self._get_obs(_PhysicsState(jnp.asarray(qpos), jnp.asarray(qvel)), info)
 
     def _get_obs(self, data, info, base_state=None):
-        """29 values (seed 000): rpy, body linear and angular velocity, 12 motor positions, sin/cos of
-        each leg's phase in radians (the robot's code forgot the 2 pi); + command when tracking.
-        base_state: (rpy, lin_vel, ang_vel) when the caller has computed it already."""
-        cfg = self._config
+        """The observation of `obs_spec` (seed 000's 29 values; + command when tracking), read by
+        sensors.observation_parts. base_state: (rpy, lin_vel, ang_vel) when the caller has it."""
         rpy, lin_vel, ang_vel = self._base_state(data) if base_state is None else base_state
-        motor_pos = data.qpos[self._motor_qpos]
-        if cfg.randomize:
-            k = jax.random.split(jax.random.fold_in(info["rng"], 1), 4)
-            n = cfg.noise
-            rpy = rpy + n.rpy * jax.random.normal(k[0], (3,))
-            lin_vel = lin_vel + n.lin_vel * jax.random.normal(k[1], (3,))
-            ang_vel = ang_vel + n.ang_vel * jax.random.normal(k[2], (3,))
-            motor_pos = motor_pos + n.motor_pos * jax.random.normal(k[3], (12,))
         phase = 2 * jnp.pi * gait.leg_phases(info["gait_progress"] * self._gait.cycle_s, self._gait)
-        parts = [rpy, lin_vel, ang_vel, motor_pos, jnp.sin(phase), jnp.cos(phase)]
-        if cfg.command_tracking:
-            parts.append(info["command"])
-        return jnp.concatenate(parts)
+        motor_pos = data.qpos[self._motor_qpos]
+        parts = sensors.observation_parts(
+            self._config, rpy, lin_vel, ang_vel, motor_pos, phase, info["command"], info["rng"]
+        )
+        return self._obs_spec.assemble(parts)
 
     def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height, contact, stance) -> dict:
-        """height: the base origin above the ground under it [m]; contact, stance: (4,) bool, the
-        feet on the ground (at the last substep, foot_contact) and the phase table's stance legs at
-        the end of the step."""
-        r = self._config.reward
-        return {
-            "forward_velocity_exp": rewards.forward_velocity_exp(
-                lin_vel, self._forward_target, r.forward_sigma
-            ),
-            "lateral_l2": rewards.lateral_l2(lin_vel, ang_vel),
-            "vertical_l2": rewards.vertical_l2(lin_vel, ang_vel),
-            "orientation_l2": rewards.orientation_l2(rpy, r.orientation_coeffs),
-            "height_l2": rewards.height_l2(height, r.height_target),
-            "action_rate_l2": rewards.action_rate_l2(action, info["last_action"]),
-            "torque_l2": rewards.torque_l2(data.actuator_force),
-            "lin_vel_tracking_exp": rewards.lin_vel_tracking_exp(lin_vel, info["command"], r.tracking_sigma),
-            "ang_vel_tracking_exp": rewards.ang_vel_tracking_exp(ang_vel, info["command"], r.tracking_sigma),
-            "lin_vel_z_l2": rewards.lin_vel_z_l2(lin_vel),
-            "ang_vel_xy_l2": rewards.ang_vel_xy_l2(ang_vel),
-            "contact_phase": rewards.contact_phase(contact, stance),
-        }
+        """Unweighted reward terms (rewards.locomotion_terms); height: the base origin above the ground
+        under it [m]; contact, stance: (4,) bool, the feet on the ground (at the last substep,
+        foot_contact) and the phase table's stance legs at the end of the step."""
+        return rewards.locomotion_terms(
+            self._config.reward,
+            self._forward_target,
+            lin_vel=lin_vel,
+            ang_vel=ang_vel,
+            rpy=rpy,
+            height=height,
+            action=action,
+            last_action=info["last_action"],
+            actuator_force=data.actuator_force,
+            command=info["command"],
+            contact=contact,
+            stance=stance,
+        )

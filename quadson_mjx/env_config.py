@@ -14,14 +14,14 @@ import ml_collections
 import mujoco
 
 from quadson_mjx.gait import GaitParams
-from quadson_mjx.robots import ROBOT_NAMES, get_robot
-from quadson_mjx.robots.quadson import constants
+from quadson_mjx.robots import ROBOT_NAMES, TERRAINS, get_robot
 
 SEED_EPISODE_S = 4500 / 240.0  # seed 000: 4500 PyBullet steps at 240 Hz = 18.75 s
 
 
-def reward_config(command_tracking: bool = False) -> ml_collections.ConfigDict:
-    """Weights of the reward terms (see quadson_mjx.rewards); a weight of 0 switches a term off."""
+def reward_config(height_target: float, command_tracking: bool = False) -> ml_collections.ConfigDict:
+    """Weights of the reward terms (see quadson_mjx.rewards); a weight of 0 switches a term off.
+    height_target: the base height the height term holds [m] (the robot's Robot.height_target_m)."""
     weights = {
         # seed 000 section 8.2
         "forward_velocity_exp": 0.0 if command_tracking else 1.0,
@@ -50,12 +50,12 @@ def reward_config(command_tracking: bool = False) -> ml_collections.ConfigDict:
             # forward_target, so a policy stabilises the gait at its speed (the gait recipes)
             "target_gait_speed": False,
             # The seed writes exp(-0.5 (vx - 0.5)^2), i.e. sigma = 1 m/s: a kernel so flat that 0.37 m/s
-            # earns 99 % of the maximum, and PPO stopped there (measured, README). 0.25 m/s makes
+            # earns 99 % of the maximum, and PPO stopped there (measured, docs/results.md). 0.25 m/s makes
             # the 0.5 m/s target worth reaching; set 1.0 for the seed's exact reward.
             "forward_sigma": 0.25,
             "tracking_sigma": 0.25,  # m/s and rad/s, for the command-tracking kernels
             "orientation_coeffs": (40.0, 30.0, 0.0 if command_tracking else 5.0),  # roll, pitch, yaw
-            "height_target": constants.STANCE_HEIGHT,  # m, seed 000's 0.2 m
+            "height_target": height_target,  # m (Quadson: seed 000's 0.2 m)
         }
     )
 
@@ -159,8 +159,8 @@ def env_config(
     command_tracking = command_tracking or joystick
     spec = get_robot(robot)
     gait = spec.default_gait if gait is None else gait
-    if terrain not in ("flat", "rough"):
-        raise ValueError(f"terrain must be 'flat' or 'rough', got {terrain!r}")
+    if terrain not in TERRAINS:
+        raise ValueError(f"terrain must be one of {TERRAINS}, got {terrain!r}")
     if gait not in spec.gait_names:
         raise ValueError(f"unknown gait {gait!r} for {robot}; choose from {spec.gait_names}")
     if gait_recipe and (robot != "quadson" or gait not in GAIT_RECIPES):
@@ -174,7 +174,7 @@ def env_config(
             "terrain": terrain,
             # Base box <-> ground contacts. MJX's box-heightfield collision is expensive: on the rough
             # scene it made physics 22-36x slower on the 2-core CPU (two runs of
-            # benchmarks/terrain_contact_cost.py, results_terrain_contact_cpu.log). False
+            # benchmarks/terrain_contact_cost.py, benchmarks/results/terrain_contact_cpu.log). False
             # leaves only the feet touching the ground (the usual choice for MJX rough-terrain
             # training). At the termination limits (45 deg tilt, base 0.1 m up) the 34 x 16 x 8 cm
             # base box is still clear of level ground unless the body is both low and steeply tilted.
@@ -201,7 +201,7 @@ def env_config(
             "ctrl_dt": 0.02,
             "episode_length_s": SEED_EPISODE_S,
             "gait": gait,
-            # the gait table's (constants.GAITS) cycle time, step length and swing height, scaled;
+            # the robot's gait table's cycle time, step length and swing height, scaled;
             # the gait's speed (its command without command_tracking) scales with length / cycle
             "gait_scale": {"cycle_s": 1.0, "step_length_m": 1.0, "step_height_m": 1.0},
             "swing": "bezier_seed",  # seed 000 Algorithm 6 (the apex variant tips the open-loop trot)
@@ -234,7 +234,7 @@ def env_config(
                 # close to the edge ends as a truncation (metrics["off_field"]), not a fall.
                 "off_field_margin_m": 0.3,
             },
-            "reward": reward_config(command_tracking),
+            "reward": reward_config(spec.height_target_m, command_tracking),
             "noise": {  # Gaussian sensor noise std, used when randomize is on
                 "rpy": 0.02,
                 "lin_vel": 0.05,
@@ -275,7 +275,7 @@ def env_config(
 
 def env_gait(cfg) -> GaitParams:
     """The gait an env config runs: the robot's gait table entry cfg.gait with cfg.swing and
-    cfg.gait_scale (Quadson: constants.GAITS)."""
+    cfg.gait_scale (Quadson: robots/quadson/constants.GAITS)."""
     gait_params = get_robot(cfg.get("robot", "quadson")).gait_params
     base = gait_params(cfg.gait)
     scale = cfg.get("gait_scale") or {}
@@ -334,8 +334,8 @@ def check_env_config(cfg) -> None:
     if robot not in ROBOT_NAMES:
         raise ValueError(f"env.robot is {robot!r}; choose from {list(ROBOT_NAMES)}")
     spec = get_robot(robot)
-    if cfg.terrain not in ("flat", "rough"):
-        raise ValueError(f"env.terrain is {cfg.terrain!r}; choose 'flat' or 'rough'")
+    if cfg.terrain not in TERRAINS:
+        raise ValueError(f"env.terrain is {cfg.terrain!r}; choose from {list(TERRAINS)}")
     if cfg.gait not in spec.gait_names:
         raise ValueError(f"env.gait is {cfg.gait!r}; {robot} has {list(spec.gait_names)}")
     if cfg.gait_action and not spec.gait_action:

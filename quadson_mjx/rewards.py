@@ -85,3 +85,38 @@ def contact_phase(contact, stance):
     """Share of the feet (4,) whose ground contact (bool) equals the phase table's stance (bool):
     1 when touching down exactly in stance and lifted exactly in swing, in [0, 1]."""
     return jnp.mean((contact == stance).astype(jnp.float32))
+
+
+def locomotion_terms(
+    r,
+    forward_target,
+    *,
+    lin_vel,
+    ang_vel,
+    rpy,
+    height,
+    action,
+    last_action,
+    actuator_force,
+    command,
+    contact,
+    stance,
+) -> dict:
+    """Every term of the locomotion environment, unweighted, by name (the config's reward.weights
+    keys). r: the env config's `reward` group; forward_target [m/s]; body-frame velocities (3,);
+    rpy (3,) [rad]; height above the ground under the base [m]; command (3,); contact, stance (4,)
+    bool: feet on the ground and the phase table's stance legs."""
+    return {
+        "forward_velocity_exp": forward_velocity_exp(lin_vel, forward_target, r.forward_sigma),
+        "lateral_l2": lateral_l2(lin_vel, ang_vel),
+        "vertical_l2": vertical_l2(lin_vel, ang_vel),
+        "orientation_l2": orientation_l2(rpy, r.orientation_coeffs),
+        "height_l2": height_l2(height, r.height_target),
+        "action_rate_l2": action_rate_l2(action, last_action),
+        "torque_l2": torque_l2(actuator_force),
+        "lin_vel_tracking_exp": lin_vel_tracking_exp(lin_vel, command, r.tracking_sigma),
+        "ang_vel_tracking_exp": ang_vel_tracking_exp(ang_vel, command, r.tracking_sigma),
+        "lin_vel_z_l2": lin_vel_z_l2(lin_vel),
+        "ang_vel_xy_l2": ang_vel_xy_l2(ang_vel),
+        "contact_phase": contact_phase(contact, stance),
+    }

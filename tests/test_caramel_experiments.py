@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from quadson_mjx.robots.caramel import constants as C
 from quadson_mjx import seed003 as E
+from quadson_mjx.robots.caramel import constants as C
 from quadson_mjx.robots.caramel import gait as G
 
 N = 25  # ticks per phase: T 0.5 s at 50 Hz

@@ -15,8 +15,9 @@ import pytest
 
 from quadson_mjx import rewards
 from quadson_mjx.config import apply_overrides
-from quadson_mjx.env import LocomotionEnv, quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
+from quadson_mjx.quat import quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.wrappers import wrap_for_training
 
 
