@@ -7,7 +7,8 @@ foot offsets -> five-bar IK -> 12 motor targets, exactly as the environment comp
 
     python -m quadson_mjx.deploy policy.onnx --bench 2000   # time one step on this computer
 
-Imports numpy, quadson_mjx.robots.quadson.constants / gait_np / export (numpy only) and, for an .onnx, onnxruntime:
+Imports numpy, quadson_mjx.robots.quadson.constants / gait_np, quadson_mjx.quat / obs_spec / export
+(numpy and array-api-compat) and, for an .onnx, onnxruntime:
 no jax, mujoco or brax. The gait, its start ramp and the clamped IK are gait_np's numpy versions of
 the simulator's JAX code; the env config (gait, swing, control period, ramp, action scale,
 observation options) comes from the metadata the export wrote into the policy file.
@@ -44,18 +45,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from quadson_mjx import gait_np
-
-
-def quat_to_rpy(q) -> np.ndarray:
-    """quat (..., 4) wxyz -> (..., 3) roll, pitch, yaw [rad], ZYX (env.quat_to_rpy)."""
-    q = np.asarray(q, np.float64)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = np.arcsin(np.minimum(np.maximum(2 * (w * y - z * x), -1.0), 1.0))
-    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return np.stack([roll, pitch, yaw], axis=-1)
-
+from quadson_mjx import obs_spec
+from quadson_mjx.quat import quat_to_rpy
+from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import gait_np
 
 # --- the policy --------------------------------------------------------------------------------------
 
@@ -129,12 +122,21 @@ class LoopConfig(NamedTuple):
         )
 
     @property
+    def obs_spec(self) -> obs_spec.Spec:
+        """The observation this loop assembles: the environment's (quadson_mjx.obs_spec) for Quadson."""
+        return obs_spec.locomotion_observation(C.LEGS, C.MOTOR_JOINTS, self.command_tracking)
+
+    @property
+    def action_spec(self) -> obs_spec.Spec:
+        return obs_spec.locomotion_action(C.LEGS, self.gait_action, self.action_scale_m)
+
+    @property
     def obs_size(self) -> int:
-        return 29 + (3 if self.command_tracking else 0)
+        return self.obs_spec.size
 
     @property
     def action_size(self) -> int:
-        return 12 + (2 if self.gait_action else 0)
+        return self.action_spec.size
 
 
 class StepResult(NamedTuple):
@@ -152,11 +154,19 @@ class DeployLoop:
         self.policy = policy
         self.config = config or LoopConfig.from_env_config(policy.meta["env_config"])
         c = self.config
+        self._obs_spec = c.obs_spec
         if (policy.obs_size, policy.action_size) != (c.obs_size, c.action_size):
             raise ValueError(
                 f"the policy takes {policy.obs_size} observations and gives {policy.action_size} actions; "
                 f"its env config implies {c.obs_size} and {c.action_size}"
             )
+        for key, spec in (("obs_spec", c.obs_spec), ("action_spec", c.action_spec)):
+            # files exported before the spec existed carry none; their layout is the one above
+            if key in policy.meta and obs_spec.Spec.from_json(policy.meta[key]) != spec:
+                raise ValueError(
+                    f"the policy file's {key} differs from the one this loop builds: "
+                    f"file {obs_spec.Spec.from_json(policy.meta[key]).describe()}; loop {spec.describe()}"
+                )
         self.default_command = np.array([gait_np.seed_speed(c.gait), 0.0, 0.0])
         self.reset()
 
@@ -166,20 +176,21 @@ class DeployLoop:
         self.time_s = 0.0  # time since reset, as info["episode_time"]
 
     def observation(self, imu_quat_wxyz, gyro, motor_pos, base_lin_vel, command) -> np.ndarray:
-        """env._get_obs from sensor readings (see the module docstring) -> (obs_size,) float32."""
+        """env._get_obs from sensor readings (see the module docstring): the entries of
+        config.obs_spec -> (obs_size,) float32."""
         g = self.config.gait
         phase = 2.0 * np.pi * gait_np.leg_phases(self.progress * g.cycle_s, g)
-        parts = [
-            quat_to_rpy(imu_quat_wxyz),
-            np.asarray(base_lin_vel, np.float64).reshape(3),
-            np.asarray(gyro, np.float64).reshape(3),
-            np.asarray(motor_pos, np.float64).reshape(12),
-            np.sin(phase),
-            np.cos(phase),
-        ]
+        parts = {
+            "base_rpy": quat_to_rpy(np.asarray(imu_quat_wxyz, np.float64)),
+            "base_lin_vel": np.asarray(base_lin_vel, np.float64).reshape(3),
+            "base_ang_vel": np.asarray(gyro, np.float64).reshape(3),
+            "motor_pos": np.asarray(motor_pos, np.float64).reshape(12),
+            "phase_sin": np.sin(phase),
+            "phase_cos": np.cos(phase),
+        }
         if self.config.command_tracking:
-            parts.append(np.asarray(command, np.float64).reshape(3))
-        return np.concatenate(parts).astype(np.float32)
+            parts["command"] = np.asarray(command, np.float64).reshape(3)
+        return self._obs_spec.assemble(parts).astype(np.float32)
 
     def targets(self, action, command) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """env._motor_targets at the current clock: -> (motor targets (12,), valid (4,), foot

@@ -5,9 +5,9 @@
 
 The output's suffix picks the format; an existing file is kept unless --overwrite is given. The .npz
 holds the observation normaliser (mean, std) and the policy MLP's layers of a brax PPO
-checkpoint (quadson_mjx.training), plus the env and PPO configs as JSON so the robot side can check
-the observation layout (29 values, seed 000: rpy, body linear and angular velocity, 12 motor
-positions, sin/cos of the 4 leg phases; + command (vx, vy, yaw rate) when command tracking).
+checkpoint (quadson_mjx.training), plus the env and PPO configs and the task's observation and
+action specification (quadson_mjx.obs_spec: ordered entries, sizes, units, sensors) as JSON, so the
+robot side checks the layout it builds against the one the policy was trained on.
 
 Inference is brax's deterministic PPO policy: obs -> (obs - mean) / std -> Dense + swish for every
 hidden layer -> Dense -> the Gaussian's mean, in float32; then, by the run's policy_distribution,
@@ -18,7 +18,8 @@ env's normalised action in [-1, 1]: foot offsets times env.action_scale_m [m].
 The .onnx is the same computation as one ONNX graph (opset ONNX_OPSET, written with the `onnx`
 package): input "obs" float32 [batch, obs_size], output "action" float32 [batch, action_size]; the
 normaliser's mean and std are constants of the graph, and the run's metadata (the .npz's meta_json)
-and the observation layout are in the model's metadata_props. ONNX Runtime runs it
+the observation and action specifications ("obs_spec", "action_spec", JSON) and a one-line
+description ("obs_layout") are in the model's metadata_props. ONNX Runtime runs it
 (quadson_mjx.deploy does, on the robot).
 
 Only numpy is imported at module level: copy this file and the .npz onto the robot.
@@ -35,12 +36,6 @@ FORMAT_VERSION = 2  # 2 added "squash"; a version-1 file is a tanh_normal policy
 SUFFIXES = (".npz", ".onnx")
 ONNX_OPSET = 17  # every op used is older; ONNX Runtime >= 1.13 runs opset 17
 ONNX_IR_VERSION = 8  # the IR of opset 17: a newer one would shut out older runtimes
-OBS_LAYOUT = (
-    "roll, pitch, yaw [rad] (ZYX); base linear velocity (3) [m/s] and angular velocity (3) [rad/s] in "
-    "the body frame (x forward, y left, z up); 12 motor positions [rad], legs FL FR RL RR x motors "
-    "(motor0, motor1, motor5); sin of the 4 leg phases (2 pi x phase); cos of the 4 leg phases; + "
-    "command (vx [m/s], vy [m/s], yaw rate [rad/s]) when command tracking"
-)
 SQUASH = {"tanh": np.tanh, "clip": lambda x: np.clip(x, np.float32(-1.0), np.float32(1.0))}
 ACTIVATIONS = {
     "swish": lambda x: x * (np.float32(0.5) + np.float32(0.5) * np.tanh(np.float32(0.5) * x)),  # x sigmoid(x)
@@ -177,6 +172,8 @@ def export_run(
         "ppo_config": json.loads(to_json(ppo_cfg)),
         "ctrl_dt_s": env.ctrl_dt,
         "action_scale_m": float(env_cfg.action_scale_m),
+        "obs_spec": env.obs_spec.to_json(),
+        "action_spec": env.action_spec.to_json(),
         "versions": versions(),
     }
     arrays = export_arrays(
@@ -194,6 +191,13 @@ def export_run(
         else:
             np.savez(f, **arrays)  # to a file object: numpy appends no ".npz"
     return out_path
+
+
+def _layout(meta: dict, key: str) -> str:
+    """One line describing the spec `key` of an export's metadata (quadson_mjx.obs_spec)."""
+    from quadson_mjx.obs_spec import Spec
+
+    return Spec.from_json(meta[key]).describe() if key in meta else "(not recorded in this export)"
 
 
 def onnx_model(arrays: dict):
@@ -245,13 +249,16 @@ def onnx_model(arrays: dict):
         opset_imports=[helper.make_opsetid("", ONNX_OPSET)],
         producer_name="quadson_mjx",
         doc_string=(
-            f"obs [batch, {policy.obs_size}] float32: {OBS_LAYOUT}. action [batch, {policy.action_size}] "
-            "float32 in [-1, 1]: foot offsets (x, y, z per leg, FL FR RL RR, shoulder frames) over "
-            "action_scale_m [m], added to the gait's foot targets (then 2 gait scales if gait_action)"
+            f"obs [batch, {policy.obs_size}] float32: {_layout(policy.meta, 'obs_spec')}. "
+            f"action [batch, {policy.action_size}] float32 in [-1, 1]: {_layout(policy.meta, 'action_spec')}"
         ),
     )
     model.ir_version = ONNX_IR_VERSION
-    helper.set_model_props(model, {"meta_json": json.dumps(policy.meta), "obs_layout": OBS_LAYOUT})
+    props = {"meta_json": json.dumps(policy.meta), "obs_layout": _layout(policy.meta, "obs_spec")}
+    for key in ("obs_spec", "action_spec"):
+        if key in policy.meta:
+            props[key] = policy.meta[key]
+    helper.set_model_props(model, props)
     onnx.checker.check_model(model, full_check=True)
     return model
 

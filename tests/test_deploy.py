@@ -16,11 +16,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from quadson_mjx import deploy, fivebar, gait, gait_np, swing
+from quadson_mjx import deploy, swing
 from quadson_mjx.config import to_json
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson import fivebar, gait, gait_np
 
 ROOT = Path(__file__).resolve().parents[1]
 # jitted references: one compile each instead of one per eager op (GaitParams leaves are traced)
@@ -168,7 +169,7 @@ def test_run_loop_steps_on_the_control_clock():
 
 def test_deploy_imports_neither_jax_nor_mujoco_nor_brax():
     code = (
-        "import sys, numpy as np; from quadson_mjx import deploy, gait_np;"
+        "import sys, numpy as np; from quadson_mjx import deploy; from quadson_mjx.robots.quadson import gait_np;"
         "print(sorted(n for n in ('jax', 'brax', 'flax', 'mujoco') if n in sys.modules))"
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)

@@ -15,6 +15,7 @@ import pytest
 from quadson_mjx import export, training
 from quadson_mjx.config import to_json
 from quadson_mjx.env_config import env_config
+from quadson_mjx.obs_spec import Spec
 
 OBS, ACT = 29, 12
 
@@ -104,7 +105,12 @@ def test_onnx_export_matches_the_jax_policy(run_dir, tmp_path):
     assert {o.domain or "ai.onnx": o.version for o in model.opset_import} == {"ai.onnx": export.ONNX_OPSET}
     props = {p.key: p.value for p in model.metadata_props}
     assert json.loads(props["meta_json"])["checkpoint"] == "step_000000001000.msgpack"
-    assert "12 motor positions" in props["obs_layout"]
+    assert "motor_pos (12) [rad] from encoders" in props["obs_layout"]
+    spec = Spec.from_json(props["obs_spec"])  # the table of docs/deploy.md: 9-20 motors, 21-24 sin
+    assert (
+        spec.size == OBS and spec.slices()["motor_pos"] == slice(9, 21) and spec.names[21] == "phase_sin.FL"
+    )
+    assert Spec.from_json(props["action_spec"]).size == ACT
     sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     (inp,), (outp,) = sess.get_inputs(), sess.get_outputs()
     assert (inp.name, inp.shape[1], inp.type) == ("obs", OBS, "tensor(float)")

@@ -1,0 +1,128 @@
+"""The observation and action specification (quadson_mjx.obs_spec): defined once, and the environment,
+the deploy loop and the exported file agree on it.
+
+References: the observation table published with the ONNX export (docs/deploy.md: indices 0-2 rpy,
+3-5 base linear velocity, 6-8 gyro, 9-20 motors, 21-24 sin, 25-28 cos of the phases, 29-31
+command), and the environment's own observation of a physics state, which the deploy loop must
+rebuild from the sensor readings of that state.
+"""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from quadson_mjx import deploy, obs_spec
+from quadson_mjx.config import to_json
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import env_config
+from quadson_mjx.quat import quat_rotate_inverse
+
+LEGS = ("FL", "FR", "RL", "RR")
+MOTORS = tuple(f"{leg}_{m}_joint" for leg in LEGS for m in ("motor0", "motor1", "motor5"))
+
+
+def test_locomotion_observation_is_the_published_table():
+    spec = obs_spec.locomotion_observation(LEGS, MOTORS, command_tracking=True)
+    assert spec.size == 32
+    s = spec.slices()
+    assert (s["base_rpy"], s["base_lin_vel"], s["base_ang_vel"]) == (slice(0, 3), slice(3, 6), slice(6, 9))
+    assert (s["motor_pos"], s["phase_sin"], s["phase_cos"]) == (slice(9, 21), slice(21, 25), slice(25, 29))
+    assert s["command"] == slice(29, 32)
+    assert spec.names[9] == "motor_pos.FL_motor0_joint" and spec.names[20] == "motor_pos.RR_motor5_joint"
+    assert spec.names[29:] == ("command.vx", "command.vy", "command.yaw_rate")
+    assert obs_spec.locomotion_observation(LEGS, MOTORS, command_tracking=False).size == 29
+    # only the base velocity comes from no sensor of the robot (an estimator)
+    assert {e.name for e in spec.entries if e.sensor == "estimator"} == {"base_lin_vel"}
+
+
+def test_action_spec_sizes():
+    assert obs_spec.locomotion_action(LEGS, False, 0.05).size == 12
+    act = obs_spec.locomotion_action(LEGS, True, 0.05)
+    assert act.size == 14 and act.names[:3] == ("foot_offset.FL.x", "foot_offset.FL.y", "foot_offset.FL.z")
+
+
+def test_assemble_split_and_json_round_trip():
+    spec = obs_spec.locomotion_observation(LEGS, MOTORS, command_tracking=True)
+    vec = np.arange(32.0)
+    parts = spec.split(vec)
+    np.testing.assert_array_equal(spec.assemble(parts), vec)
+    assert obs_spec.Spec.from_json(spec.to_json()) == spec
+    # batched and jitted, as the environment runs it
+    batch = jnp.arange(64.0).reshape(2, 32)
+    out = jax.jit(lambda b: spec.assemble(spec.split(b)))(batch)
+    assert out.shape == (2, 32) and out.dtype == jnp.float32
+    np.testing.assert_array_equal(out, batch)
+
+
+def test_assemble_refuses_a_wrong_or_missing_part():
+    spec = obs_spec.locomotion_observation(LEGS, MOTORS, command_tracking=False)
+    parts = spec.split(np.zeros(29))
+    with pytest.raises(ValueError, match=r"motor_pos has shape \(11,\)"):
+        spec.assemble({**parts, "motor_pos": np.zeros(11)})
+    with pytest.raises(ValueError, match=r"missing \['phase_cos'\]"):
+        spec.assemble({k: v for k, v in parts.items() if k != "phase_cos"})
+    with pytest.raises(ValueError, match=r"unknown \['command'\]"):
+        spec.assemble({**parts, "command": np.zeros(3)})
+
+
+class _Policy:
+    def __init__(self, env):
+        self.meta = {
+            "env_config": json.loads(to_json(env.config)),
+            "obs_spec": env.obs_spec.to_json(),
+            "action_spec": env.action_spec.to_json(),
+        }
+        self.obs_size, self.action_size = env.observation_size, env.action_size
+
+    def __call__(self, obs):
+        return np.zeros(self.action_size, np.float32)
+
+
+@pytest.fixture(scope="module")
+def command_env():
+    return LocomotionEnv(env_config(command_tracking=True))
+
+
+def test_env_and_deploy_loop_build_the_same_observation_from_the_same_sensors(command_env):
+    env = command_env
+    loop = deploy.DeployLoop(_Policy(env))
+    assert loop.config.obs_spec == env.obs_spec and loop.config.action_spec == env.action_spec
+    observe = jax.jit(env.observation)
+    rng = np.random.default_rng(3)
+    motor_q = np.asarray(env._motor_qpos)
+    for _ in range(5):
+        qpos = np.asarray(env._home_qpos, np.float64).copy()
+        quat = rng.normal(size=4)
+        qpos[3:7] = quat / np.linalg.norm(quat)
+        qpos[motor_q] += rng.uniform(-0.2, 0.2, 12)
+        qvel = rng.uniform(-1.0, 1.0, env.sys.nv)
+        progress = float(rng.uniform(0, 1))
+        command = rng.uniform(-0.3, 0.3, 3)
+        info = {
+            "gait_progress": jnp.float32(progress),
+            "command": jnp.asarray(command, jnp.float32),
+            "rng": jax.random.PRNGKey(0),
+        }
+        want = np.asarray(observe(jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32), info))
+        loop.progress = progress
+        got = loop.observation(
+            imu_quat_wxyz=qpos[3:7],
+            gyro=qvel[3:6],  # the free joint's angular velocity is in the body frame
+            motor_pos=qpos[motor_q],
+            base_lin_vel=quat_rotate_inverse(qpos[3:7], qvel[0:3]),
+            command=command,
+        )
+        assert got.shape == want.shape == (env.obs_spec.size,) and got.dtype == np.float32
+        np.testing.assert_allclose(got, want, rtol=0, atol=2e-5)  # float32 env, float64 loop
+
+
+def test_deploy_loop_refuses_a_file_with_another_spec(command_env):
+    policy = _Policy(command_env)
+    entries = list(obs_spec.Spec.from_json(policy.meta["obs_spec"]).entries)
+    entries[0], entries[1] = entries[1], entries[0]  # same sizes, another order
+    policy.meta["obs_spec"] = obs_spec.Spec(tuple(entries)).to_json()
+    with pytest.raises(ValueError, match="obs_spec differs"):
+        deploy.DeployLoop(policy)
