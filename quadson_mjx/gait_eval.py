@@ -28,7 +28,6 @@ import numpy as np
 
 from quadson_mjx import gait
 from quadson_mjx import rollout as R
-from quadson_mjx.robots.quadson import constants as C
 
 FORCE_THRESHOLD_N = 1.0  # a foot carrying less than ~3 % of its share of the ~3 kg robot is "up"
 
@@ -101,7 +100,7 @@ def gait_stats(
     }
 
 
-def footfall_lines(contact: np.ndarray, stance: np.ndarray, legs=C.LEGS) -> list[str]:
+def footfall_lines(contact: np.ndarray, stance: np.ndarray, legs) -> list[str]:
     """A footfall diagram as text, one character per control step: contact, stance (T, 4) bool ->
     per leg two lines, the phase table ('#' stance, '.' swing) and the feet measured ('#' down)."""
     lines = []
@@ -146,5 +145,7 @@ def evaluate(
         lo, hi = (int(round(t / env.ctrl_dt)) for t in footfall_s)
         fell = bool(np.any(first_episode_mask(traj.done)[:hi, 0] & traj.done[:hi, 0]))
         contact = traj.foot_force[lo:hi, 0] > FORCE_THRESHOLD_N
-        stats["footfalls"] = [] if fell else footfall_lines(contact, traj.scheduled_stance[lo:hi, 0])
+        stats["footfalls"] = (
+            [] if fell else footfall_lines(contact, traj.scheduled_stance[lo:hi, 0], env.robot.legs)
+        )
     return stats

@@ -31,9 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from quadson_mjx.env import quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.quat import quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.robots import get_robot
-from quadson_mjx.robots.quadson import constants as C
 from quadson_mjx.stabilizer import SEED_003_GAINS, PidGains, pid_init, pid_step
 
 CONTROLLERS = ("gait", "pid")  # named controllers; a policy comes from a run directory
@@ -109,7 +108,7 @@ def imu_acceleration(quat, lin_acc_world, gravity):
     return quat_rotate_inverse(quat, lin_acc_world - gravity)
 
 
-def foot_geom_ids(mj_model, legs=C.LEGS) -> np.ndarray:
+def foot_geom_ids(mj_model, legs) -> np.ndarray:
     """(4,) collision geom of each foot, `legs` order."""
     import mujoco
 

@@ -19,8 +19,6 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from quadson_mjx.robots.quadson import constants as C
-
 BACKENDS = ("egl", "osmesa")
 SUFFIXES = (".mp4", ".gif")
 # The tracking camera: distance [m] from the robot's centre of mass, azimuth and elevation [deg]
@@ -59,6 +57,16 @@ def gl_context(width: int, height: int, backend: str | None = None):
     return ctx, backend
 
 
+def _track_body_id(model: mujoco.MjModel, name: str | None) -> int:
+    if name is not None:
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+        if body < 0:
+            raise KeyError(f"body {name!r} not in the model")
+        return body
+    free = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
+    return int(model.jnt_bodyid[free[0]]) if free.size else 0
+
+
 class Renderer:
     """Offscreen frames of a model at given qpos, from a camera tracking the base body.
     render(qpos (nq,)) -> (height, width, 3) uint8 RGB. close() frees the OpenGL context.
@@ -71,7 +79,10 @@ class Renderer:
         height: int = 480,
         backend: str | None = None,
         shadows: bool = True,
+        track_body: str | None = None,
     ):
+        """track_body: the body the camera follows (default: the free-floating base, the body of the
+        model's first free joint)."""
         self.model = copy.deepcopy(model)  # the offscreen buffer size is a model setting
         self.model.vis.global_.offwidth = max(width, self.model.vis.global_.offwidth)
         self.model.vis.global_.offheight = max(height, self.model.vis.global_.offheight)
@@ -88,7 +99,7 @@ class Renderer:
         self._perturb = mujoco.MjvPerturb()
         self.camera = mujoco.MjvCamera()
         self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-        self.camera.trackbodyid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, C.ROOT_BODY)
+        self.camera.trackbodyid = _track_body_id(self.model, track_body)
         self.camera.distance = CAMERA_DISTANCE_M
         self.camera.azimuth = CAMERA_AZIMUTH_DEG
         self.camera.elevation = CAMERA_ELEVATION_DEG
