@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 import ml_collections
 
-from quadson_mjx.env_config import GAIT_RECIPES, env_config, with_added_keys
+from quadson_mjx.env_config import GAIT_RECIPES, check_env_config, env_config, with_added_keys
 from quadson_mjx.robots import ROBOT_NAMES
 
 # Training physics of every preset: feet-only ground contact and no joint-limit rows (the episode
@@ -50,13 +50,15 @@ def config_from_flags(
     gait_action: bool = False,
 ) -> ml_collections.ConfigDict:
     """The env config of the training script's flags (--robot, --env-preset, --terrain, --gait,
-    --gait-action), locked. `gait` trains that gait with its recipe (env_config.GAIT_RECIPES).
-    Raises ValueError for an unknown preset, terrain, robot or gait, or a gait without a recipe."""
+    --gait-action), locked and checked (env_config.check_env_config). `gait` trains that gait with
+    its recipe (env_config.GAIT_RECIPES). Raises ValueError for an unknown preset, terrain, robot or
+    gait, a gait without a recipe, or gait_action for a robot whose gait cannot be scaled."""
     if env_preset not in ENV_PRESETS:
         raise ValueError(f"unknown env preset {env_preset!r}; choose from {sorted(ENV_PRESETS)}")
     recipe = {"gait": gait, "gait_recipe": True} if gait else {}
     cfg = env_config(terrain=terrain, robot=robot, **ENV_PRESETS[env_preset], **recipe)
     cfg.gait_action = gait_action
+    check_env_config(cfg)
     return cfg
 
 
