@@ -16,7 +16,7 @@ present and agrees with the messages read. The report names the topics, schemas,
 time range, metadata, attachments and every damaged record. `--recover OUT` writes a new, complete
 file with every readable message (schemas and channels kept), metadata record and intact attachment;
 OUT must not exist and is written whole or not at all. `--rollout` expects every topic of a rollout
-file (quadson_mjx.foxglove_mcap). `decode` turns a message (JSON or Foxglove protobuf) into a dict.
+file (quadson_mjx.foxglove_mcap). quadson_mjx.mcap_decode turns a message (JSON or Foxglove protobuf) into a dict.
 Exit status: 0 valid, 1 readable only in part (damaged or truncated), 2 unreadable, missing an
 expected topic, or a usage error (such as an OUT that exists).
 """
@@ -56,40 +56,9 @@ from mcap.records import (
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
+from quadson_mjx.mcap_decode import decode
+
 ROLLOUT_TOPICS = ("/tf", "/scene", "/joint_states", "/odom", "/imu", "/rollout/step", "/log")
-
-
-def decode(schema, channel, message) -> dict:
-    """A JSON or protobuf (Foxglove schema) message -> dict; protobuf needs the `protobuf` package.
-    Protobuf fields keep their proto names (`child_frame_id`) and follow protobuf's JSON mapping
-    (google.protobuf.Timestamp as RFC 3339 text, 64-bit integers as strings)."""
-    if channel.message_encoding == "json":
-        return json.loads(message.data)
-    if channel.message_encoding != "protobuf":
-        raise ValueError(f"cannot decode {channel.message_encoding!r} messages of {channel.topic}")
-    return _to_dict(_protobuf_class(schema.name, schema.data).FromString(message.data))
-
-
-_PROTO_CLASSES: dict = {}
-
-
-def _protobuf_class(name: str, fds_bytes: bytes):
-    key = (name, fds_bytes)
-    if key not in _PROTO_CLASSES:
-        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-
-        fds = descriptor_pb2.FileDescriptorSet.FromString(fds_bytes)
-        pool = descriptor_pool.DescriptorPool()
-        for fd in fds.file:
-            pool.Add(fd)
-        _PROTO_CLASSES[key] = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
-    return _PROTO_CLASSES[key]
-
-
-def _to_dict(msg) -> dict:
-    from google.protobuf.json_format import MessageToDict
-
-    return MessageToDict(msg, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
 
 
 MAGIC = b"\x89MCAP0\r\n"
