@@ -158,3 +158,24 @@ def test_export_usage_error_from_the_shell_has_no_traceback(tmp_path):
     assert res.returncode == 2
     assert res.stderr.count("\n") == 1 and "not a training run directory" in res.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+ROOT = Path(__file__).resolve().parents[1]
+COMMITTED_RUNS = sorted(p.parent for p in (ROOT / "results").rglob("config.json"))
+
+
+@pytest.mark.parametrize("run", COMMITTED_RUNS, ids=lambda p: str(p.relative_to(ROOT / "results")))
+def test_every_committed_run_exports_and_the_deploy_loop_accepts_its_spec(run, tmp_path):
+    """The layout change must keep every committed run loadable and exportable; the exported file's
+    observation spec is the one the deploy loop builds for Quadson (Caramel has no loop yet)."""
+    from quadson_mjx import deploy
+
+    out = export.export_run(run, tmp_path / "policy.onnx")
+    props = {p.key: p.value for p in onnx.load(out).metadata_props}
+    spec, meta = Spec.from_json(props["obs_spec"]), json.loads(props["meta_json"])
+    policy = deploy.load_policy(out)
+    assert (policy.obs_size, policy.action_size) == (spec.size, Spec.from_json(props["action_spec"]).size)
+    action = policy(np.zeros(policy.obs_size, np.float32))
+    assert np.all(np.isfinite(action)) and np.all(np.abs(action) <= 1.0)
+    if meta["env_config"]["robot"] == "quadson":
+        assert deploy.DeployLoop(policy).config.obs_spec == spec
