@@ -5,7 +5,7 @@ This path keeps working: `python eval/gait.py ARGS` is `quadson-gait ARGS`.
 
 import sys
 
-from quadson_mjx.cli.gait import main, run_trial  # noqa: F401 (tests/test_walk.py loads this file and uses run_trial)
+from quadson_mjx.cli.gait import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -5,7 +5,7 @@ This path keeps working: `python eval/rollout.py ARGS` is `quadson-rollout ARGS`
 
 import sys
 
-from quadson_mjx.cli.rollout import foxglove_mcap, main  # noqa: F401 (tests/test_video.py loads this file and patches foxglove_mcap)
+from quadson_mjx.cli.rollout import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -176,7 +176,7 @@ class VideoWriter:
 
 
 class RolloutVideo:
-    """Renders environment `env_index` of each rollout segment (foxglove_mcap.record's on_segment) into
+    """Renders environment `env_index` of each rollout segment (recording.record's on_segment) into
     a video at the control rate."""
 
     def __init__(

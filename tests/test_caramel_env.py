@@ -212,14 +212,8 @@ def test_pid_controller_tilts_caramel_feet_with_its_body_kinematics(caramel_env)
 @pytest.fixture(scope="module")
 def caramel_run(tmp_path_factory):
     """`python train/ppo_mjx.py --robot caramel` with the test preset, through the script's main."""
-    import importlib.util
-    from pathlib import Path
+    from quadson_mjx.cli import train as script
 
-    spec = importlib.util.spec_from_file_location(
-        "ppo_mjx", Path(__file__).resolve().parents[1] / "train" / "ppo_mjx.py"
-    )
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
     run_dir = tmp_path_factory.mktemp("caramel") / "run"
     argv = ["--robot", "caramel", "--env-preset", "command", "--preset", "test", "--no-compile-cache"]
     assert script.main([*argv, "--run-dir", str(run_dir)]) == 0
@@ -258,7 +252,7 @@ def test_caramel_rollout_mcap_of_the_trained_policy(caramel_run, tmp_path):
     from quadson_mjx import mcap_check, training
     from quadson_mjx import rollout as R
     from quadson_mjx import seed003 as E
-    from quadson_mjx.foxglove_mcap import record
+    from quadson_mjx.recording import record
 
     _, run_dir = caramel_run
     policy, env_cfg, _, _ = training.load_policy(run_dir)

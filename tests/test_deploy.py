@@ -191,7 +191,7 @@ def replay(tmp_path_factory):
     """The trained policy's rollout (MJX) written to MCAP and read back, and its ONNX export."""
     from quadson_mjx import export, mcap_check, training
     from quadson_mjx import rollout as R
-    from quadson_mjx.foxglove_mcap import record
+    from quadson_mjx.recording import record
 
     policy, env_cfg, _, _ = training.load_policy(RUN)
     env = LocomotionEnv(env_cfg)

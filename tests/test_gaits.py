@@ -6,7 +6,6 @@ MuJoCo C on the same model and state for the feet's ground contact, the numpy de
 One bound-recipe env with one jitted reset and step is shared by the env tests (module fixtures).
 """
 
-import importlib.util
 import math
 import signal
 from pathlib import Path
@@ -33,13 +32,6 @@ from quadson_mjx.robots.quadson import gait, gait_np
 
 ROOT = Path(__file__).resolve().parents[1]
 GAIT_FIELDS = ("cycle_s", "duty", "step_height_m", "step_length_m", "swing", "p_t", "p_n", "discontinuous")
-
-
-def _load(name, path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _assert_same_gait(a, b):
@@ -412,7 +404,9 @@ def test_numpy_gait_rejects_an_unknown_scale_key():
 
 @pytest.fixture(scope="module")
 def gaits_cli():
-    return _load("gaits_cli", ROOT / "eval" / "gaits.py")
+    from quadson_mjx.cli import gaits
+
+    return gaits
 
 
 @pytest.mark.parametrize(
@@ -444,7 +438,9 @@ def test_gaits_cli_usage_errors_exit_2(gaits_cli, capsys, tmp_path, args, words)
 
 @pytest.fixture(scope="module")
 def ppo_cli():
-    return _load("ppo_cli", ROOT / "train" / "ppo_mjx.py")
+    from quadson_mjx.cli import train
+
+    return train
 
 
 def test_ppo_unknown_gait_exits_2(ppo_cli, capsys):

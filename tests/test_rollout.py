@@ -19,7 +19,8 @@ from quadson_mjx import mcap_check
 from quadson_mjx import rollout as R
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
-from quadson_mjx.foxglove_mcap import record, step_time_ns
+from quadson_mjx.foxglove_mcap import step_time_ns
+from quadson_mjx.recording import record
 from quadson_mjx.robots.quadson import constants as C
 from quadson_mjx.robots.quadson import fivebar
 

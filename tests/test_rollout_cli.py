@@ -3,7 +3,6 @@ before anything is simulated or written (issue 13: --envs 0 raised IndexError an
 checked complete, --seconds -1 ran one step, an existing output said only "File exists (os error 17)").
 """
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -16,10 +15,9 @@ SCRIPT = ROOT / "eval" / "rollout.py"
 
 @pytest.fixture(scope="module")
 def cli():
-    spec = importlib.util.spec_from_file_location("rollout_cli", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    from quadson_mjx.cli import rollout
+
+    return rollout
 
 
 def _usage_error(cli, capsys, argv) -> str:

@@ -2,7 +2,6 @@
 middle of the frame wherever it walks, the MP4 and GIF decode to the frames rendered, and
 eval/rollout.py --video renders the rollout's first environment."""
 
-import importlib.util
 import types
 from pathlib import Path
 
@@ -95,11 +94,8 @@ def test_video_file_decodes_to_the_rendered_frames(model, renderer, tmp_path, su
 
 
 def test_rollout_cli_video_renders_the_first_environment(monkeypatch, tmp_path, model):
-    spec = importlib.util.spec_from_file_location(
-        "rollout_cli_video", Path(__file__).resolve().parents[1] / "eval" / "rollout.py"
-    )
-    cli = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(cli)
+    from quadson_mjx.cli import rollout as cli
+
     home = qmodel.home_qpos(model)
     env0 = np.stack([home + np.eye(model.nq)[2] * 0.02 * k for k in range(3)])  # (3, nq), rising
     env1 = np.stack([home + np.eye(model.nq)[0] * 5.0] * 3)  # 5 m away: not drawn
@@ -111,7 +107,7 @@ def test_rollout_cli_video_renders_the_first_environment(monkeypatch, tmp_path, 
         on_segment(0, types.SimpleNamespace(qpos=np.stack([env0, env1], axis=1)))  # [t, B, nq]
         return {"steps": n_steps, "falls": 0, "off_field": 0, "nan_resets": 0}
 
-    monkeypatch.setattr(cli.foxglove_mcap, "record", fake_record)
+    monkeypatch.setattr(cli.recording, "record", fake_record)
     out, clip = tmp_path / "r.mcap", tmp_path / "r.mp4"
     argv = [
         "--envs",

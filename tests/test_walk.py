@@ -9,21 +9,16 @@ showed with its CoM at the body centre (constants.BASE_COM_X).
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
-
-_EVAL_GAIT = Path(__file__).resolve().parents[1] / "eval" / "gait.py"
 
 
 @pytest.fixture(scope="module")
 def eval_gait():
-    spec = importlib.util.spec_from_file_location("eval_gait", _EVAL_GAIT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    from quadson_mjx.cli import gait
+
+    return gait
 
 
 # Measured at the committed model (python eval/gait.py --gait all): trot 0.217 of 0.300 m/s, walk

@@ -36,7 +36,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from quadson_mjx import foxglove_mcap
+from quadson_mjx import recording
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
@@ -219,7 +219,7 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
         size = video_size(args.video_size)
         video = V.RolloutVideo(args.video, env.mj_model, env.ctrl_dt, overwrite=args.overwrite, size=size)
     try:
-        summary = foxglove_mcap.record(
+        summary = recording.record(
             out,
             env,
             controller,
