@@ -388,7 +388,7 @@ class LocomotionEnv(Env):
         phase = 2 * jnp.pi * gait.leg_phases(info["gait_progress"] * self._gait.cycle_s, self._gait)
         motor_pos = data.qpos[self._motor_qpos]
         parts = sensors.observation_parts(
-            self._config, rpy, lin_vel, ang_vel, motor_pos, phase, info["command"], info["rng"]
+            self._config, rpy, lin_vel, ang_vel, motor_pos, phase, info.get("command"), info.get("rng")
         )
         return self._obs_spec.assemble(parts)
 

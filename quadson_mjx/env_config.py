@@ -270,6 +270,7 @@ def env_config(
             raise KeyError(f"{robot}'s env_defaults name env.{dotted}, which the config does not have")
         node[leaf] = ml_collections.ConfigDict(value) if isinstance(value, dict) else value
     cfg.lock()
+    check_env_config(cfg)  # typed (a locked ConfigDict keeps each value's type) and checked where built
     return cfg
 
 

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 
 def observation_parts(cfg, rpy, lin_vel, ang_vel, motor_pos, phase, command, rng) -> dict:
     """cfg: the env config; rpy (3,) [rad], body-frame lin_vel (3,) [m/s] and ang_vel (3,) [rad/s],
-    motor_pos (12,) [rad], phase (4,) [rad] (2 pi x each leg's gait phase), command (3,), rng: the
-    step's noise key -> entry name -> value, the entries of obs_spec.locomotion_observation.
+    motor_pos (12,) [rad], phase (4,) [rad] (2 pi x each leg's gait phase), command (3,) (read only
+    when the config tracks commands), rng: the step's noise key (read only when randomized) -> entry name -> value, the entries of obs_spec.locomotion_observation.
     Randomized configs add Gaussian noise of std cfg.noise.* to the IMU, velocity and encoders."""
     if cfg.randomize:
         k = jax.random.split(jax.random.fold_in(rng, 1), 4)

@@ -22,7 +22,7 @@ from collections.abc import Callable
 import ml_collections
 
 from quadson_mjx.env_config import GAIT_RECIPES, check_env_config, env_config, with_added_keys
-from quadson_mjx.robots import ROBOT_NAMES
+from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
 
 # Training physics of every preset: feet-only ground contact and no joint-limit rows (the episode
 # ends before the base reaches the ground; the IK keeps targets in range): 28 constraint rows
@@ -36,7 +36,6 @@ ENV_PRESETS = {
     # termination) with randomization and pushes
     "robust": {**FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
 }
-TERRAINS = ("flat", "rough")
 
 # the word of each env preset in a task's name (the robust preset is the joystick recipe)
 PRESET_WORDS = {"seed": "", "command": "Command", "robust": "Joystick"}

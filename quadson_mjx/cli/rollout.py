@@ -36,13 +36,12 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from quadson_mjx import recording
+from quadson_mjx import gait, recording
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config, with_added_keys
-from quadson_mjx.robots import ROBOT_NAMES
-from quadson_mjx.robots.quadson import gait
+from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
 
 SUITE_YAW_RATE = 0.25  # rad/s, seed 003's turning test
 # the command sweep: the joystick range of the issue, a 5 x 3 x 5 grid (75 envs, one command each)
@@ -75,9 +74,6 @@ def policy_ground_overrides(run_dir) -> list[str]:
     ]
 
 
-TERRAINS = ("flat", "rough")
-
-
 class UsageError(Exception):
     """A bad command line: main() prints it as one line and exits with status 2."""
 
@@ -87,7 +83,7 @@ def parse(argv):
     p.add_argument("--controller", default="gait", choices=R.CONTROLLERS)
     p.add_argument("--run", default=None, help="run directory of a trained policy (overrides --controller)")
     p.add_argument("--checkpoint", default=None, help="checkpoint file of --run (default: newest)")
-    p.add_argument("--terrain", default=None, choices=["flat", "rough"], help="default: flat, or the run's")
+    p.add_argument("--terrain", default=None, choices=list(TERRAINS), help="default: flat, or the run's")
     p.add_argument("--gait", default=None, help="a gait of the robot (default: the robot's, Quadson's trot)")
     p.add_argument(
         "--robot",
