@@ -5,7 +5,7 @@ This path keeps working: `python train/ppo_mjx.py ARGS` is `quadson-train ARGS`.
 
 import sys
 
-from quadson_mjx.cli.train import main, parse, training  # noqa: F401 (tests/test_gaits.py loads this file and uses parse and training)
+from quadson_mjx.cli.train import main
 
 if __name__ == "__main__":
     sys.exit(main())
