@@ -32,6 +32,15 @@ def sample_command(cfg, seed_speed: float, rng):
     return command, timer
 
 
+def resample(cfg, seed_speed: float, command, timer, rng):
+    """A new command mid-episode when `timer` [s] (already counted down) has run out: -> (command,
+    timer, next rng); the old ones where it has not."""
+    rng, k_cmd = jax.random.split(rng)
+    new_command, new_timer = sample_command(cfg, seed_speed, k_cmd)
+    now = timer <= 0.0
+    return jnp.where(now, new_command, command), jnp.where(now, new_timer, timer), rng
+
+
 def push(push_cfg, timer, rng):
     """A horizontal velocity kick to the base when `timer` [s] (already counted down) has run out.
 

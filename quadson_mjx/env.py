@@ -35,7 +35,7 @@ from quadson_mjx import commands, gait, obs_spec, rewards, sensors, terrain
 from quadson_mjx.config import freeze
 from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_added_keys
 from quadson_mjx.env_model import BASE_GEOM, base_bottom_points, name_ids, put_model, training_model
-from quadson_mjx.quat import quat_rotate, quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.quat import quat_rotate
 from quadson_mjx.robots import get_robot
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no state of either robot is this fast; treat it as a blown-up solve
@@ -266,12 +266,9 @@ class LocomotionEnv(Env):
         info["last_ctrl"] = ctrl
         info["foot_targets"] = targets
         if cfg.command_tracking and cfg.command_resample_s[1] > 0:  # a new command mid-episode
-            info["rng"], k_cmd = jax.random.split(info["rng"])
-            info["command_timer"] = info["command_timer"] - self._ctrl_dt
-            new_command, new_timer = self.sample_command(k_cmd)
-            now = info["command_timer"] <= 0.0
-            info["command"] = jnp.where(now, new_command, info["command"])
-            info["command_timer"] = jnp.where(now, new_timer, info["command_timer"])
+            info["command"], info["command_timer"], info["rng"] = commands.resample(
+                cfg, self._seed_speed, info["command"], info["command_timer"] - self._ctrl_dt, info["rng"]
+            )
         info["rng"] = jax.random.split(info["rng"])[0]  # fresh sensor noise every step
         obs = self._get_obs(data, info, (rpy, lin_vel, ang_vel))
         obs = jnp.where(sane, obs, 0.0)
@@ -369,12 +366,7 @@ class LocomotionEnv(Env):
         return jnp.min(points[:, 2] - terrain.ground_height(self._field, points[:, :2]))
 
     def _base_state(self, data):
-        """-> rpy (3,) [rad], body-frame linear velocity (3,) [m/s], body-frame angular velocity (3,)."""
-        quat = data.qpos[3:7]
-        rpy = quat_to_rpy(quat)
-        lin_vel = quat_rotate_inverse(quat, data.qvel[0:3])  # free joint: world-frame linear velocity
-        ang_vel = data.qvel[3:6]  # free joint: angular velocity already in the body frame
-        return rpy, lin_vel, ang_vel
+        return sensors.base_state(data.qpos, data.qvel)
 
     def observation(self, qpos, qvel, info):
         """The observation of a physics state given as qpos (nq,), qvel (nv,) (e.g. CPU MuJoCo's, or a

@@ -10,6 +10,16 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from quadson_mjx.quat import quat_rotate_inverse, quat_to_rpy
+
+
+def base_state(qpos, qvel):
+    """The base as the IMU and a velocity estimator see it, from the free joint's qpos (nq,) and qvel
+    (nv,): -> rpy (3,) [rad] (ZYX), body-frame linear velocity (3,) [m/s] (qvel[0:3] is world-frame),
+    body-frame angular velocity (3,) [rad/s] (qvel[3:6] is already in the body frame)."""
+    quat = qpos[3:7]
+    return quat_to_rpy(quat), quat_rotate_inverse(quat, qvel[0:3]), qvel[3:6]
+
 
 def observation_parts(cfg, rpy, lin_vel, ang_vel, motor_pos, phase, command, rng) -> dict:
     """cfg: the env config; rpy (3,) [rad], body-frame lin_vel (3,) [m/s] and ang_vel (3,) [rad/s],
