@@ -1,0 +1,129 @@
+"""How the project's programs answer bad input, and how they write files so nothing is half-written.
+
+Every command-line program (quadson_mjx.cli.*, export, deploy, mcap_check) raises `UsageError` for
+input it cannot run with and wraps its `main` in `one_line_errors`: the user sees one line on stderr
+and the program exits with status 2, never a traceback. Files are written with `atomic_write`: to a
+temporary file in the same folder, flushed and fsynced, then renamed over the target, so a reader
+(or a crash) sees the old file or the whole new one.
+
+Standard library only: this module sits at the bottom of the package and the robot's computer loads it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import functools
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+EXIT_USAGE = 2  # the status of a bad input, as argparse uses it
+
+
+class UsageError(Exception):
+    """Input a program cannot run with (a bad argument, a missing or damaged file, a config value out
+    of range). The message is one line that names the input and, where there is one, the fix."""
+
+
+def one_line(exc: BaseException) -> str:
+    """The first line of an exception's message (its type's name when it has none)."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _os_hint(exc: OSError) -> str:
+    where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return f"cannot write or read{where}: permission denied or read-only; choose a writable path"
+    if exc.errno == errno.ENOSPC:
+        return f"no space left on the device{where}; free some or choose another folder"
+    if exc.errno == errno.ENOENT:
+        return f"no such file or folder:{where or ' ' + one_line(exc)}"
+    if exc.errno == errno.EISDIR:
+        return f"{where.strip()} is a folder, a file is needed"
+    if exc.errno == errno.ENOTDIR:
+        return f"{where.strip()}: a path component is not a folder"
+    return one_line(exc)
+
+
+def one_line_errors(main):
+    """Wrap a `main(argv=None) -> int`: a UsageError or an OSError (a missing, unreadable or
+    unwritable file) prints one line "error: ..." on stderr and returns EXIT_USAGE. Other exceptions
+    are bugs and keep their traceback."""
+
+    @functools.wraps(main)
+    def wrapped(*args, **kwargs):
+        try:
+            return main(*args, **kwargs)
+        except UsageError as e:
+            print(f"error: {one_line(e)}", file=sys.stderr)
+            return EXIT_USAGE
+        except OSError as e:
+            print(f"error: {_os_hint(e)}", file=sys.stderr)
+            return EXIT_USAGE
+
+    return wrapped
+
+
+@contextlib.contextmanager
+def atomic_write(path, mode: str = "wb"):
+    """Open a temporary file beside `path` for writing ("wb" or "w"); on a clean exit it is flushed,
+    fsynced and renamed over `path`; on an exception it is removed and `path` is untouched. Raises
+    UsageError before writing anything when the folder is missing or not writable."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise UsageError(f"{path}: the folder {folder} does not exist; create it first")
+    if path.is_dir():
+        raise UsageError(f"{path} is a folder, a file name is needed")
+    if not os.access(folder, os.W_OK):
+        raise UsageError(f"{path}: the folder {folder} is not writable; choose a writable path")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, mode) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    with atomic_write(path, "wb") as f:
+        f.write(data)
+
+
+def write_text_atomic(path, text: str) -> None:
+    with atomic_write(path, "w") as f:
+        f.write(text)
+
+
+def check_writable(path, what: str = "output") -> Path:
+    """Raise UsageError now (before a long computation) when `path` could not be written later:
+    missing or read-only folder, or a folder where a file is needed. -> Path(path)."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise UsageError(f"{what} {path} is a folder, a file name is needed")
+    if not folder.is_dir():
+        raise UsageError(f"{what} {path}: the folder {folder} does not exist; create it first")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise UsageError(f"{what} {path}: not writable (read-only?); choose a writable path")
+    return path
+
+
+def check_readable(path, what: str = "input") -> Path:
+    """Raise UsageError when `path` is not a readable file. -> Path(path)."""
+    path = Path(path)
+    if not path.exists():
+        raise UsageError(f"{what} {path}: no such file")
+    if path.is_dir():
+        raise UsageError(f"{what} {path} is a folder, a file is needed")
+    if not os.access(path, os.R_OK):
+        raise UsageError(f"{what} {path}: not readable (permission denied)")
+    return path
