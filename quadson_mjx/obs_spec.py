@@ -17,8 +17,11 @@ from collections.abc import Mapping, Sequence
 
 from array_api_compat import array_namespace
 
-# sensors an observation entry may come from; "simulator" entries are what only a simulator knows
-SENSORS = ("imu", "encoders", "estimator", "clock", "command", "policy")
+# sensors an observation entry may come from: "estimator" is a state estimator the robot would need
+# (the project provides none), "simulator" what only a simulator knows (the critic's privileged view)
+SENSORS = ("imu", "encoders", "estimator", "clock", "command", "policy", "simulator")
+# what the robot measures or knows by itself: an actor whose spec uses only these runs on the robot
+ROBOT_SENSORS = ("imu", "encoders", "clock", "command", "policy")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,6 +101,10 @@ class Spec:
     def sensors(self) -> set[str]:
         return {e.sensor for e in self.entries}
 
+    def robot_measurable(self) -> bool:
+        """True when every entry comes from a sensor the robot has (ROBOT_SENSORS)."""
+        return self.sensors() <= set(ROBOT_SENSORS)
+
     def to_json(self) -> str:
         return json.dumps([dataclasses.asdict(e) for e in self.entries])
 
@@ -151,3 +158,78 @@ def locomotion_action(legs: Sequence[str], gait_action: bool, action_scale_m: fl
     if gait_action:
         entries.append(entry("gait_scale", ("step_length", "frequency"), "", "policy", "1 + range * a"))
     return Spec(tuple(entries))
+
+
+# entries of the sensor observation that are also observed at earlier ticks when history > 1
+HISTORY_ENTRIES = ("gravity", "gyro", "motor_pos", "motor_vel", "last_action")
+
+
+def lagged(name: str, lag: int) -> str:
+    """The name of entry `name` observed `lag` control ticks ago ("gyro@-2"); lag 0 is the name."""
+    return name if lag == 0 else f"{name}@-{lag}"
+
+
+def sensor_observation(
+    legs: Sequence[str], motor_joints: Sequence[str], action_size: int, history: int = 1
+) -> Spec:
+    """The actor's observation from the robot's own sensors only (ROBOT_SENSORS): the IMU's gravity
+    direction in the body frame (no absolute yaw) and gyroscope, the motor encoders' angles and their
+    velocity by difference over one control tick, the policy's last action, sin and cos of each leg's
+    gait phase, and the command. history > 1 adds the IMU, encoder and action entries of the
+    history - 1 ticks before, newest first ("gyro@-1", ..., HISTORY_ENTRIES)."""
+    if history < 1:
+        raise ValueError(f"history {history}: need at least 1 tick")
+    actions = tuple(f"a{i}" for i in range(action_size))
+    base = {
+        "gravity": entry("gravity", ("x", "y", "z"), "1", "imu", "unit gravity direction, body frame"),
+        "gyro": entry("gyro", ("x", "y", "z"), "rad/s", "imu", "gyroscope, body frame"),
+        "motor_pos": entry("motor_pos", tuple(motor_joints), "rad", "encoders", "motor angles"),
+        "motor_vel": entry(
+            "motor_vel",
+            tuple(motor_joints),
+            "rad/s",
+            "encoders",
+            "encoder difference over one tick / ctrl_dt",
+        ),
+        "last_action": entry("last_action", actions, "", "policy", "the action of the previous tick"),
+    }
+    entries = list(base.values())
+    for lag in range(1, history):
+        entries += [dataclasses.replace(base[n], name=lagged(n, lag)) for n in HISTORY_ENTRIES]
+    entries += [
+        entry("phase_sin", tuple(legs), "", "clock", "sin(2 pi phase) of each leg's gait phase"),
+        entry("phase_cos", tuple(legs), "", "clock", "cos(2 pi phase)"),
+        COMMAND,
+    ]
+    return Spec(tuple(entries))
+
+
+def privileged_observation(legs: Sequence[str], actor: Spec) -> Spec:
+    """The critic's observation (asymmetric actor-critic): the actor's entries, then what only the
+    simulator knows: the base's true velocity and height above the ground under it, each foot's
+    contact and height above the ground under it, the ground under each foot relative to the ground
+    under the base, and the episode's randomized physics and sensor parameters."""
+    legs = tuple(legs)
+    sim = [
+        entry("true_lin_vel", ("x", "y", "z"), "m/s", "simulator", "base velocity, body frame"),
+        entry("true_ang_vel", ("x", "y", "z"), "rad/s", "simulator", "base angular velocity, body frame"),
+        entry("base_height", ("z",), "m", "simulator", "base origin above the ground under it"),
+        entry("foot_contact", legs, "", "simulator", "1 when the foot touches the ground"),
+        entry("foot_clearance", legs, "m", "simulator", "foot above the ground under it"),
+        entry("ground_under_feet", legs, "m", "simulator", "ground under each foot - ground under the base"),
+        entry(
+            "physics",
+            ("friction", "mass_scale", "motor_strength", "actuation_latency"),
+            ("", "", "", "s"),
+            "simulator",
+            "the episode's randomized model",
+        ),
+        entry(
+            "sensor_model",
+            ("gyro_bias.x", "gyro_bias.y", "gyro_bias.z", "imu_tilt.roll", "imu_tilt.pitch", "latency"),
+            ("rad/s", "rad/s", "rad/s", "rad", "rad", "s"),
+            "simulator",
+            "the episode's sensor errors",
+        ),
+    ]
+    return Spec(tuple(actor.entries) + tuple(sim))
