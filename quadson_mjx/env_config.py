@@ -107,7 +107,36 @@ ENV_KEYS_ADDED = {
     "gait_scale.cycle_s": 1.0,
     "gait_scale.step_length_m": 1.0,
     "gait_scale.step_height_m": 1.0,
+    "observation": "true_state",
+    "obs_history": 1,
+    "asymmetric_critic": False,
 }
+
+# What the actor observes (obs_spec): "sensors", the robot's own sensors only (sensor_observation);
+# "true_state", seed 000's observation with the simulator's base velocity and yaw
+# (locomotion_observation), which a robot can only feed from a state estimator.
+OBSERVATIONS = ("sensors", "true_state")
+
+# The sensor model of the "sensors" observation, drawn per episode when randomize is on (else only
+# the encoders' quantisation applies). Ranges a small servo robot has:
+# - IMU: MEMS gyros (MPU-6050, BMI088 class) have a white noise of ~0.01 rad/s at 50 Hz and a bias
+#   that drifts with temperature by ~0.5 deg/s after a start-up calibration; walking vibration adds
+#   more, so noise 0.05 rad/s and bias up to 0.03 rad/s (1.7 deg/s). A hand-mounted IMU board sits
+#   within ~2 deg of the body frame: tilt up to 0.035 rad in roll and pitch. The gravity direction
+#   of a fusion filter wanders by ~1 deg: noise 0.02 per component.
+# - encoders: 12-bit magnetic encoders (AS5600 class) read 2 pi / 4096 = 1.5 mrad steps; gear
+#   backlash and the bus add ~0.005 rad.
+# - latency: a servo bus and an IMU filter at 50 Hz deliver readings up to one tick (20 ms) old.
+SENSOR_MODEL = {
+    "gravity_noise": 0.02,  # std of each component of the unit gravity direction
+    "gyro_noise_rps": 0.05,  # std [rad/s]
+    "gyro_bias_rps": 0.03,  # per-episode bias, uniform in +- [rad/s] per axis
+    "imu_tilt_rad": 0.035,  # per-episode mounting tilt, uniform in +- [rad] in roll and pitch
+    "encoder_noise_rad": 0.005,  # std [rad]
+    "encoder_resolution_rad": 2 * math.pi / 4096,  # quantisation step [rad]; 0: none
+    "latency_s": (0.0, 0.02),  # age of the readings, per episode [s], in physics timesteps
+}
+ENV_KEYS_ADDED.update({f"sensor.{k}": v for k, v in SENSOR_MODEL.items()})
 
 
 def with_added_keys(cfg) -> ml_collections.ConfigDict:
@@ -241,6 +270,13 @@ def env_config(
                 "ang_vel": 0.1,
                 "motor_pos": 0.01,
             },
+            # what the actor observes (OBSERVATIONS), how many ticks of its IMU, encoder and action
+            # entries (obs_spec.HISTORY_ENTRIES), and whether the critic observes the privileged
+            # state (obs_spec.privileged_observation; brax PPO's value_obs_key)
+            "observation": "true_state",
+            "obs_history": 1,
+            "asymmetric_critic": False,
+            "sensor": dict(SENSOR_MODEL),
             "randomize": randomize,
             "randomization": {
                 "friction": (0.5, 1.2),  # sliding friction, seed nominal 0.8
@@ -328,7 +364,7 @@ def check_env_config(cfg) -> None:
             if isinstance(v, int | float) and not isinstance(v, bool) and not math.isfinite(v):
                 raise ValueError(f"env.{key} must be finite, got {value!r}")
         head = key.split(".")[0]
-        if head in ("command_range", "randomization", "push") and isinstance(value, tuple | list):
+        if head in ("command_range", "randomization", "push", "sensor") and isinstance(value, tuple | list):
             if len(value) != 2 or not value[0] <= value[1]:
                 raise ValueError(f"env.{key} must be a (low, high) range with low <= high, got {value!r}")
     robot = cfg.get("robot", "quadson")
@@ -377,6 +413,21 @@ def check_env_config(cfg) -> None:
         raise ValueError(f"env.gait, env.swing, env.gait_scale: {robot}'s {cfg.gait!r}: {e}") from e
     for key in ("rpy", "lin_vel", "ang_vel", "motor_pos"):
         _number(f"noise.{key}", cfg.noise[key], non_negative, ">= 0")
+    if cfg.observation not in OBSERVATIONS:
+        raise ValueError(f"env.observation is {cfg.observation!r}; choose from {list(OBSERVATIONS)}")
+    if (
+        isinstance(cfg.obs_history, bool)
+        or not isinstance(cfg.obs_history, int)
+        or not 1 <= cfg.obs_history <= 16
+    ):
+        raise ValueError(f"env.obs_history must be an integer in [1, 16] (ticks), got {cfg.obs_history!r}")
+    if cfg.obs_history > 1 and cfg.observation != "sensors":
+        raise ValueError("env.obs_history > 1 needs env.observation=sensors")
+    if "sensor" in cfg:  # configs are checked before with_added_keys too
+        for key, value in cfg.sensor.items():
+            _number(
+                f"sensor.{key}", value[0] if isinstance(value, tuple | list) else value, non_negative, ">= 0"
+            )
     r = cfg.randomization
     for key in ("friction", "mass_scale", "motor_strength"):
         _number(f"randomization.{key}", r[key][0], positive, "a range of values > 0 (its low end)")
