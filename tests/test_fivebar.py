@@ -498,3 +498,41 @@ def test_leg_ik_checked_names_a_nan_target_as_not_finite_regression():
     with pytest.raises(ValueError, match="not a finite number") as info:
         fb.leg_ik_checked(np.array([[-0.04, -0.20, 0.0], [np.nan, -0.2, 0.0]]))
     assert "out of reach" not in str(info.value) and "index (1,)" in str(info.value)
+
+
+def test_regression_leg_ik_gradient_finite_at_the_shoulder_origin(float_dtype):
+    # Regression: jax.grad of leg_ik was NaN at the foot target (0, 0, 0). _safe_norm floored the
+    # squared norm with `maximum(sq, tiny)`; at v = 0 the two tie, half the gradient went through
+    # sqrt' = 1 / (2 sqrt(tiny)), and the law of cosines' 1 / |pe|^2 overflowed (inf * 0 = NaN).
+    # The target is far out of reach (too close): valid False, angles and gradients finite.
+    targets = np.array(
+        [[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 1e-12, 0.0], [0.0, 0.0, -1e-30]], float_dtype
+    )
+    grad = jax.jit(jax.vmap(jax.grad(lambda f: jnp.sum(fb.leg_ik(f)[0]))))
+    jrev = jax.jit(jax.vmap(jax.jacrev(lambda f: fb.leg_ik(f)[0])))
+    angles, valid = map(np.asarray, ik(targets))
+    assert np.all(np.isfinite(angles)) and not valid.any()
+    assert np.all(np.isfinite(np.asarray(grad(targets))))
+    assert np.all(np.isfinite(np.asarray(jrev(targets))))
+
+
+def test_regression_leg_ik_gradient_still_matches_central_differences():
+    # The safe-norm floor (eps * 1 m) must not change the gradient where the IK is solved: jax.grad
+    # of leg_ik against central differences of leg_ik itself, float64, at valid targets away from
+    # the singular poses (the same draws as the Jacobian tests).
+    a = _valid_poses(64, seed=11)
+    with jax.enable_x64(True):
+        feet = np.asarray(fk(a))
+        _, valid = map(np.asarray, ik(feet))
+        feet = feet[valid]
+        j = np.asarray(jax.jit(jax.vmap(jax.jacrev(lambda f: fb.leg_ik(f)[0])))(feet))
+        h = 1e-7  # m; central: truncation h^2 |f'''| and rounding 1e-16 rad / h, both < 1e-8 rad/m
+        cols = []
+        for i in range(3):
+            e = np.zeros(3)
+            e[i] = h
+            cols.append((np.asarray(ik(feet + e)[0]) - np.asarray(ik(feet - e)[0])) / (2 * h))
+        central = np.stack(cols, axis=-1)
+    assert len(feet) > 32
+    err = np.abs(j - central).max(axis=(-1, -2)) / (1.0 + np.abs(j).max(axis=(-1, -2)))
+    assert err.max() < 1e-5, err.max()

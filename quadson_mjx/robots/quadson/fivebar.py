@@ -73,15 +73,27 @@ def _sin_acos_jvp(primals, tangents):
 
 
 def _safe_norm(v: jax.Array) -> jax.Array:
-    """Euclidean norm over the last axis, with a finite gradient at v = 0."""
+    """Euclidean norm over the last axis, floored at eps * 1 m, with a finite gradient at v = 0.
+
+    The floor is applied to the squared norm with a `where` (zero gradient below it), not with
+    `maximum`: at v = 0 the squared norm ties with a floor of `tiny`, maximum sends half the
+    gradient through sqrt' = 1 / (2 sqrt(tiny)), and a later 1 / norm^2 (the law of cosines)
+    overflows to inf and gives NaN (leg_ik's gradient at the foot target (0, 0, 0)). eps * 1 m
+    (1.2e-7 m in float32) lies below the rounding step of the leg's coordinates (~0.1 m * eps), so
+    the values of every norm the kinematics can resolve are unchanged.
+    """
     sq = jnp.sum(v * v, axis=-1)
-    tiny = jnp.finfo(jnp.result_type(v)).tiny
-    return jnp.sqrt(jnp.maximum(sq, tiny))
+    floor = jnp.square(jnp.finfo(jnp.result_type(v)).eps).astype(sq.dtype)
+    return jnp.sqrt(jnp.where(sq > floor, sq, floor))
 
 
 def _safe_atan2(y: jax.Array, x: jax.Array) -> jax.Array:
-    """atan2(y, x), 0 at the origin, with a finite (zero) gradient there instead of NaN."""
-    ok = (x != 0) | (y != 0)
+    """atan2(y, x), 0 at the origin, with a finite (zero) gradient there instead of NaN.
+
+    "The origin" includes vectors whose squared length underflows (below the dtype's `tiny`,
+    |v| < 1e-19 m in float32): atan2's derivative 1 / |v| is computed through |v|^2 and would be
+    inf / NaN there."""
+    ok = x * x + y * y >= jnp.finfo(jnp.result_type(x, y)).tiny
     return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0.0), jnp.where(ok, x, 1.0)), 0.0)
 
 
