@@ -8,12 +8,15 @@ unknown key or a value of the wrong type.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import json
+import math
 import re
 from collections.abc import Iterable, Mapping
 
 import ml_collections
+import numpy as np
 from absl import flags
 from ml_collections import config_flags
 
@@ -188,3 +191,69 @@ def from_json(text: str) -> ConfigDict:
     cfg = ml_collections.ConfigDict(json.loads(text))
     cfg.lock()
     return cfg
+
+
+@dataclasses.dataclass(frozen=True)
+class Rule:
+    """What one config key may hold. kind: "number" (one value in [lo, hi]; lo_open: lo itself
+    excluded), "int" (an integer in [lo, hi]), "pair" (a (low, high) range, low <= high, both in
+    [lo, hi]), "vector" (a tuple of values each in [lo, hi]), "bool", "name" (a string the
+    structural checks of check_env_config / check_ppo_config test against their lists)."""
+
+    kind: str
+    lo: float = -math.inf
+    hi: float = math.inf
+    unit: str = ""
+    lo_open: bool = False
+
+    def describe(self) -> str:
+        if self.kind in ("bool", "name"):
+            return "true/false" if self.kind == "bool" else "a known name"
+        left = "(" if self.lo_open else "["
+        span = f"{left}{self.lo:g}, {self.hi:g}]" + (f" {self.unit}" if self.unit else "")
+        return {
+            "pair": f"a (low, high) range with low <= high, both in {span}",
+            "vector": f"values in {span}",
+        }.get(self.kind, f"{'an integer' if self.kind == 'int' else 'a number'} in {span}")
+
+    def check(self, name: str, value) -> None:
+        """Raises ValueError naming `name` when `value` breaks the rule. Numbers are also checked
+        in float32, the dtype training runs in (1e300 is finite in float64 and inf in float32)."""
+        if self.kind == "bool":
+            if not isinstance(value, bool):
+                raise ValueError(f"{name} must be true or false, got {value!r}")
+            return
+        if self.kind == "name":
+            if not isinstance(value, str):
+                raise ValueError(f"{name} must be a name (a string), got {value!r}")
+            return
+        many = self.kind in ("pair", "vector")
+        values = tuple(value) if many and isinstance(value, tuple | list) else (value,)
+        if many != isinstance(value, tuple | list) or (self.kind == "pair" and len(values) != 2):
+            raise ValueError(f"{name} must be {self.describe()}, got {value!r}")
+        for v in values:
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise ValueError(f"{name} must be {self.describe()}, got {value!r}")
+            if self.kind == "int" and not isinstance(v, int):
+                raise ValueError(f"{name} must be {self.describe()}, got {value!r}")
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"{name} must be finite, got {value!r}")
+            with np.errstate(over="ignore"):
+                overflows = isinstance(v, float) and not math.isfinite(float(np.float32(v)))
+            if overflows:
+                raise ValueError(
+                    f"{name} must be finite in float32, the dtype training runs in: {v!r} overflows to inf"
+                )
+            low_ok = v > self.lo if self.lo_open else v >= self.lo
+            if not (low_ok and v <= self.hi):
+                raise ValueError(f"{name} must be {self.describe()}, got {value!r}")
+        if self.kind == "pair" and not values[0] <= values[1]:
+            raise ValueError(f"{name} must be {self.describe()}, got {value!r}")
+
+
+def rule_for(rules: dict[str, Rule], key: str) -> Rule | None:
+    """The rule of dotted `key` in `rules` (exact name first, then a `group.*` entry), or None."""
+    if key in rules:
+        return rules[key]
+    head = key.rsplit(".", 1)[0] if "." in key else None
+    return rules.get(f"{head}.*") if head else None

@@ -8,11 +8,14 @@ go through `quadson_mjx.config.apply_overrides`.
 
 from __future__ import annotations
 
+import functools
 import math
+import re
 
 import ml_collections
 import mujoco
 
+from quadson_mjx.config import Rule, rule_for
 from quadson_mjx.gait import GaitParams
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS, get_robot
 
@@ -344,6 +347,78 @@ def _walk(cfg, prefix: str = ""):
             yield f"{prefix}{k}", v
 
 
+# Every env key's allowed values. The upper bounds are what this robot class can use, far beyond
+# the presets (so a typo like 100 for 0.1 is caught, not a deliberate experiment): speeds a 20 cm
+# robot cannot reach, episodes of an hour, reward weights of 10^4 (the largest preset weight is
+# height_l2's 50). A new key without an entry fails tests/test_training_hardening.py.
+_M, _S, _RAD = "m", "s", "rad"
+ENV_RULES: dict[str, Rule] = {
+    "robot": Rule("name"),
+    "terrain": Rule("name"),
+    "base_terrain_contact": Rule("bool"),
+    "joint_limits": Rule("bool"),
+    "cone": Rule("name"),
+    "solver": Rule("name"),
+    "jacobian": Rule("name"),
+    "impl": Rule("name"),
+    "ctrl_dt": Rule("number", 0.0, 1.0, _S, lo_open=True),  # and a multiple of the model timestep
+    "episode_length_s": Rule("number", 0.0, 3600.0, _S, lo_open=True),  # and >= ctrl_dt
+    "gait": Rule("name"),
+    "gait_scale.*": Rule("number", 0.0, 10.0, "(a factor on the gait table)", lo_open=True),
+    "swing": Rule("name"),
+    "gait_ramp_s": Rule("number", 0.0, 60.0, _S, lo_open=True),
+    "action_scale_m": Rule("number", 0.0, 0.2, _M),  # the legs are about 0.2 m long
+    "gait_action": Rule("bool"),
+    "gait_action_range": Rule("number", 0.0, 0.99, "(the scale 1 +- range must stay > 0)"),
+    "command_tracking": Rule("bool"),
+    "command_range.*": Rule("pair", -5.0, 5.0, "m/s or rad/s"),
+    "command_resample_s": Rule("pair", 0.0, 3600.0, _S),
+    "command_zero_prob": Rule("number", 0.0, 1.0, "(a probability)"),
+    "termination.max_tilt_rad": Rule("number", 0.0, math.pi, _RAD, lo_open=True),
+    "termination.min_height_m": Rule("number", 0.0, 2.0, _M),
+    "termination.base_below_terrain": Rule("bool"),
+    "termination.base_clearance_m": Rule("number", 0.0, 0.5, _M),
+    "termination.off_field_margin_m": Rule("number", 0.0, 4.0, _M),  # the stone field is 8 x 8 m
+    "reward.weights.*": Rule("number", -1e4, 1e4),
+    "reward.forward_target": Rule("number", -5.0, 5.0, "m/s"),
+    "reward.target_gait_speed": Rule("bool"),
+    "reward.forward_sigma": Rule("number", 0.0, 10.0, "m/s (a kernel width)", lo_open=True),
+    "reward.tracking_sigma": Rule("number", 0.0, 10.0, "(a kernel width)", lo_open=True),
+    "reward.orientation_coeffs": Rule("vector", 0.0, 1e4),
+    "reward.height_target": Rule("number", 0.0, 2.0, _M, lo_open=True),
+    "noise.rpy": Rule("number", 0.0, 0.5, _RAD),
+    "noise.lin_vel": Rule("number", 0.0, 2.0, "m/s"),
+    "noise.ang_vel": Rule("number", 0.0, 5.0, "rad/s"),
+    "noise.motor_pos": Rule("number", 0.0, 0.5, _RAD),
+    "observation": Rule("name"),
+    "obs_history": Rule("int", 1, 16, "ticks"),
+    "asymmetric_critic": Rule("bool"),
+    "sensor.gravity_noise": Rule("number", 0.0, 1.0, "(of a unit vector)"),
+    "sensor.gyro_noise_rps": Rule("number", 0.0, 10.0, "rad/s"),
+    "sensor.gyro_bias_rps": Rule("number", 0.0, 10.0, "rad/s"),
+    "sensor.imu_tilt_rad": Rule("number", 0.0, 0.5, _RAD),
+    "sensor.encoder_noise_rad": Rule("number", 0.0, 0.5, _RAD),
+    "sensor.encoder_resolution_rad": Rule("number", 0.0, 0.5, _RAD),
+    "sensor.latency_s": Rule("pair", 0.0, 0.5, _S),
+    "randomize": Rule("bool"),
+    "randomization.friction": Rule("pair", 0.0, 5.0, lo_open=True),
+    "randomization.mass_scale": Rule("pair", 0.0, 5.0, lo_open=True),
+    "randomization.motor_strength": Rule("pair", 0.0, 5.0, lo_open=True),
+    "randomization.latency_s": Rule("pair", 0.0, 0.5, _S),
+    "randomization.base_com_shift_m": Rule("pair", -0.1, 0.1, _M),
+    "pushes": Rule("bool"),
+    "push.interval_s": Rule("pair", 0.0, 3600.0, _S, lo_open=True),
+    "push.speed_mps": Rule("pair", 0.0, 5.0, "m/s"),
+}
+
+
+@functools.cache
+def model_timestep(robot: str) -> float:
+    """The physics timestep of `robot`'s MJCF [s], read from its <option> (no model compiled)."""
+    match = re.search(r'<option[^>]*\btimestep="([^"]+)"', get_robot(robot).model_xml_text("flat"))
+    return float(match.group(1)) if match else 0.002  # MuJoCo's default
+
+
 # MuJoCo option values of the env's physics keys
 CONES = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
 SOLVERS = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}
@@ -353,20 +428,18 @@ JACOBIANS = {"auto": mujoco.mjtJacobian.mjJAC_AUTO, "dense": mujoco.mjtJacobian.
 def check_env_config(cfg) -> None:
     """Raises ValueError naming the key (as `env.KEY`) for a value the environment would misread.
 
-    Every number must be finite; (low, high) ranges need low <= high; kernel widths, time steps
-    and durations must be positive, scales and noise non-negative; names must be known.
+    Every key has a rule in ENV_RULES (a key without one is refused): numbers finite in float32 and
+    inside their bounds, (low, high) ranges with low <= high, probabilities in [0, 1], sizes and
+    durations positive; then what relates keys: ctrl_dt a multiple of the model's timestep,
+    episode_length_s >= ctrl_dt, known names, a gait the robot can run.
     """
     from quadson_mjx.swing import SWING_SHAPES
 
     for key, value in _walk(cfg):
-        values = value if isinstance(value, tuple | list) else (value,)
-        for v in values:
-            if isinstance(v, int | float) and not isinstance(v, bool) and not math.isfinite(v):
-                raise ValueError(f"env.{key} must be finite, got {value!r}")
-        head = key.split(".")[0]
-        if head in ("command_range", "randomization", "push", "sensor") and isinstance(value, tuple | list):
-            if len(value) != 2 or not value[0] <= value[1]:
-                raise ValueError(f"env.{key} must be a (low, high) range with low <= high, got {value!r}")
+        rule = rule_for(ENV_RULES, key)
+        if rule is None:
+            raise ValueError(f"env.{key} has no range in env_config.ENV_RULES (a new key needs one)")
+        rule.check(f"env.{key}", value)
     robot = cfg.get("robot", "quadson")
     if robot not in ROBOT_NAMES:
         raise ValueError(f"env.robot is {robot!r}; choose from {list(ROBOT_NAMES)}")
@@ -387,50 +460,20 @@ def check_env_config(cfg) -> None:
             raise ValueError(f"env.{key} is {cfg[key]!r}; choose from {list(names)}")
     if cfg.swing not in SWING_SHAPES:
         raise ValueError(f"env.swing is {cfg.swing!r}; choose from {list(SWING_SHAPES)}")
-    positive = lambda v: v > 0  # noqa: E731
-    non_negative = lambda v: v >= 0  # noqa: E731
-    for key, ok, what in (
-        ("ctrl_dt", positive, "> 0 s"),
-        ("episode_length_s", lambda v: v >= cfg.ctrl_dt, f">= ctrl_dt ({cfg.ctrl_dt} s)"),
-        ("gait_ramp_s", positive, "> 0 s"),
-        ("action_scale_m", non_negative, ">= 0 m"),
-        ("gait_action_range", lambda v: 0 <= v < 1, "in [0, 1) (the scale 1 +- range must stay > 0)"),
-        ("reward.forward_sigma", positive, "> 0 m/s (a kernel width)"),
-        ("reward.tracking_sigma", positive, "> 0 (a kernel width)"),
-        ("reward.height_target", positive, "> 0 m"),
-        ("termination.max_tilt_rad", lambda v: 0 < v <= math.pi, "in (0, pi] rad"),
-    ):
-        node, leaf = cfg, key
-        while "." in leaf:
-            head, leaf = leaf.split(".", 1)
-            node = node[head]
-        _number(key, node[leaf], ok, what)
-    for key in ("cycle_s", "step_length_m", "step_height_m"):
-        _number(f"gait_scale.{key}", cfg.gait_scale[key], positive, "> 0 (a factor on the gait table)")
+    sim_dt = model_timestep(robot)
+    substeps = round(cfg.ctrl_dt / sim_dt)
+    if substeps < 1 or abs(substeps * sim_dt - cfg.ctrl_dt) > 1e-9:
+        raise ValueError(
+            f"env.ctrl_dt must be a whole multiple of {robot}'s physics timestep {sim_dt} s, got {cfg.ctrl_dt!r}"
+        )
+    _number(
+        "episode_length_s", cfg.episode_length_s, lambda v: v >= cfg.ctrl_dt, f">= ctrl_dt ({cfg.ctrl_dt} s)"
+    )
     try:
         env_gait(cfg)
     except ValueError as e:
         raise ValueError(f"env.gait, env.swing, env.gait_scale: {robot}'s {cfg.gait!r}: {e}") from e
-    for key in ("rpy", "lin_vel", "ang_vel", "motor_pos"):
-        _number(f"noise.{key}", cfg.noise[key], non_negative, ">= 0")
     if cfg.observation not in OBSERVATIONS:
         raise ValueError(f"env.observation is {cfg.observation!r}; choose from {list(OBSERVATIONS)}")
-    if (
-        isinstance(cfg.obs_history, bool)
-        or not isinstance(cfg.obs_history, int)
-        or not 1 <= cfg.obs_history <= 16
-    ):
-        raise ValueError(f"env.obs_history must be an integer in [1, 16] (ticks), got {cfg.obs_history!r}")
     if cfg.obs_history > 1 and cfg.observation != "sensors":
         raise ValueError("env.obs_history > 1 needs env.observation=sensors")
-    if "sensor" in cfg:  # configs are checked before with_added_keys too
-        for key, value in cfg.sensor.items():
-            _number(
-                f"sensor.{key}", value[0] if isinstance(value, tuple | list) else value, non_negative, ">= 0"
-            )
-    r = cfg.randomization
-    for key in ("friction", "mass_scale", "motor_strength"):
-        _number(f"randomization.{key}", r[key][0], positive, "a range of values > 0 (its low end)")
-    _number("randomization.latency_s", r.latency_s[0], non_negative, "a range of values >= 0 s")
-    _number("push.interval_s", cfg.push.interval_s[0], positive, "a range of values > 0 s (its low end)")
-    _number("push.speed_mps", cfg.push.speed_mps[0], non_negative, "a range of values >= 0 m/s")
