@@ -56,7 +56,10 @@ Mapping to the seeds:
   * seed 002: its theta1 (in [0, 2 pi), four cases) is q1 mod 2 pi for left legs, reading its printed
     ratio y/z as z/y; its theta3 = pi - R3 is the knee bend, -q3.
 
-Unreachable targets never give NaN inside jit: D^2 is floored at (eps (L2 + L3))^2 through a `where`
+Non-finite targets (NaN, inf) never give NaN inside jit either: they are solved as the home target
+(foot at (0, s L1, -max(L2, L3)), knee bent) with `valid` False and a zero gradient; finite targets
+are clipped to +-CLIP_REACH leg lengths per coordinate first (out of reach either way), so that
+1e30 m does not square to inf. Unreachable targets never give NaN inside jit: D^2 is floored at (eps (L2 + L3))^2 through a `where`
 (foot put on the hip-offset cylinder) and c3 is clipped to [-1 + eps, 1 - eps] (leg straight or
 folded toward the target), with `valid` False; eps is the dtype's. The clip also costs a reachable
 straight-leg target about sqrt(2 eps) rad of knee angle (5e-4 rad in float32) for a foot error of
@@ -89,6 +92,8 @@ CARAMEL = SerialLeg(hip_offset=0.048, femur=0.120, tibia=0.120)
 # Weefee (seed 001; robots.md): coxa/femur/tibia 30/50/60 mm and 30/70/90 mm in its code.
 WEEFEE_SMALL = SerialLeg(hip_offset=30 * MM, femur=50 * MM, tibia=60 * MM)
 WEEFEE_LARGE = SerialLeg(hip_offset=30 * MM, femur=70 * MM, tibia=90 * MM)
+
+CLIP_REACH = 100.0  # targets are clipped to +-100 (L1 + L2 + L3) per coordinate before solving
 
 LEFT = 1.0
 RIGHT = -1.0
@@ -172,8 +177,15 @@ def _ik(target: jax.Array, leg: SerialLeg, side, limits=None):
     target = jnp.asarray(target)
     dtype = jnp.result_type(target, float)
     target = target.astype(dtype)
-    x, y, z = target[..., 0], target[..., 1], target[..., 2]
     l1, l2, l3, s = _lengths(leg, side, dtype)
+    # A NaN or infinite target is solved as the home target (foot below the femur joint at depth
+    # max(L2, L3), well inside the reach) and flagged; finite targets are clipped to +-CLIP_REACH
+    # leg lengths, out of reach either way, so that their squares cannot overflow to inf.
+    finite = jnp.all(jnp.isfinite(target), axis=-1)
+    home = jnp.stack(jnp.broadcast_arrays(jnp.zeros_like(s), s * l1, -jnp.maximum(l2, l3)), axis=-1)
+    clip = CLIP_REACH * (l1 + l2 + l3)
+    target = jnp.clip(jnp.where(finite[..., None], target, home), -clip[..., None], clip[..., None])
+    x, y, z = target[..., 0], target[..., 1], target[..., 2]
     eps = jnp.finfo(dtype).eps
     tol = 64 * eps  # rounding slack of the checks, relative
 
@@ -194,6 +206,7 @@ def _ik(target: jax.Array, leg: SerialLeg, side, limits=None):
     angles = jnp.stack([q1, q2, q3], axis=-1)
 
     checks = {
+        "finite": finite,
         "outside_cylinder": depth_sq >= -tol * (y * y + z * z),
         "within_reach": cos_knee <= 1 + tol,
         "not_too_close": cos_knee >= -1 - tol,
@@ -210,12 +223,14 @@ def serial_ik(target: jax.Array, leg: SerialLeg, side=LEFT, limits=None) -> tupl
     target: (..., 3) foot in the hip frame [m]; leg: lengths [m]; side: +1 left / -1 right;
     limits: optional (3, 2) rows (lo, hi) [rad] for q1, q2, q3 in this module's convention
     (e.g. CARAMEL_LIMITS), compared with angles in (-pi, pi].
-    -> angles (..., 3) [rad], valid (...,) bool: False when the target is inside the hip-offset
-    cylinder (y^2 + z^2 < L1^2), beyond L2 + L3 or within |L2 - L3| of the femur joint, or when an
-    angle is beyond `limits`. Invalid targets get clamped, finite angles; jit- and grad-safe.
+    -> angles (..., 3) [rad], valid (...,) bool: False when the target is not finite (NaN or inf),
+    inside the hip-offset cylinder (y^2 + z^2 < L1^2), beyond L2 + L3 or within |L2 - L3| of the
+    femur joint, or when an angle is beyond `limits`. Invalid targets get clamped, finite angles (a
+    non-finite target the home angles: foot at (0, side L1, -max(L2, L3))); jit- and grad-safe,
+    with finite gradients (zero for a non-finite target).
     """
     angles, checks = _ik(target, leg, side, limits)
-    valid = checks["outside_cylinder"] & checks["within_reach"] & checks["not_too_close"]
+    valid = checks["finite"] & checks["outside_cylinder"] & checks["within_reach"] & checks["not_too_close"]
     if limits is not None:
         valid = valid & jnp.all(checks["within_limits"], axis=-1)
     return angles, valid
@@ -239,9 +254,12 @@ def serial_ik_checked(target, leg: SerialLeg, side=LEFT, limits=None) -> np.ndar
     l1, l2, l3 = (float(v) for v in leg)
     for i, (x, y, z) in enumerate(flat_target):
         reason = None
-        r = math.hypot(y, z)
-        reach = math.sqrt(max(y * y + z * z - l1 * l1, 0.0) + x * x)
-        if not ok["outside_cylinder"][i]:
+        with np.errstate(all="ignore"):  # only formatted where the target is finite
+            r = math.hypot(y, z)
+            reach = math.sqrt(max(y * y + z * z - l1 * l1, 0.0) + x * x)
+        if not ok["finite"][i]:
+            reason = "not a finite number (NaN or infinite coordinate)"
+        elif not ok["outside_cylinder"][i]:
             reason = f"inside the hip-offset cylinder: sqrt(y^2 + z^2) = {r:.6g} m < hip_offset = {l1:.6g} m"
         elif not ok["within_reach"][i]:
             reason = f"out of reach: femur joint to foot {reach:.6g} m > femur + tibia = {l2 + l3:.6g} m"

@@ -13,6 +13,7 @@ import pytest
 from quadson_mjx.serial import (
     CARAMEL,
     CARAMEL_LIMITS,
+    CLIP_REACH,
     LEFT,
     RIGHT,
     WEEFEE_LARGE,
@@ -327,6 +328,45 @@ def test_unreachable_flagged_finite_and_eager_helper_raises(ik, ik_jac):
     # A reachable target passes and agrees with the jitted IK.
     ok = [0.02, -0.04, -0.08]
     np.testing.assert_allclose(serial_ik_checked(ok, leg, s), serial_ik(jnp.array(ok), leg, s)[0], atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_regression_serial_ik_non_finite_target_is_invalid_with_finite_angles_and_gradients(dtype):
+    # Regression: under jit a NaN or inf coordinate gave NaN angles and gradients (against the
+    # docstring). Now: valid False, the home angles (foot at (0, s L1, -max(L2, L3)): by hand for
+    # Caramel, L2 = L3 = 0.12 m, depth 0.12 m = L2: an equilateral femur-tibia-line triangle, so
+    # q3 = -(pi - pi/3) = -2 pi/3, q2 = pi/3, q1 = 0), zero gradients; a 1e30 m target (its squares
+    # overflow float32) is solved as its clip at CLIP_REACH leg lengths, out of reach either way.
+    with jax.enable_x64(dtype == "float64"):
+        dt = jnp.dtype(dtype)
+        targets = jnp.array(
+            [
+                [np.nan, 0.05, -0.2],
+                [np.inf, 0.05, -0.2],
+                [0.0, -np.inf, -0.2],
+                [0.0, 0.05, np.nan],
+                [0.0, 0.0, -1e30],
+                [0.0, 0.0, -CLIP_REACH * sum(CARAMEL)],
+            ],
+            dt,
+        )
+        ik_lim = jax.jit(jax.vmap(serial_ik, in_axes=(0, None, None, None)))
+        angles, valid = map(np.asarray, ik_lim(targets, CARAMEL, LEFT, CARAMEL_LIMITS))
+        assert angles.dtype == dt and np.all(np.isfinite(angles)) and not valid.any()
+        np.testing.assert_allclose(angles[:4], [[0.0, math.pi / 3, -2 * math.pi / 3]] * 4, atol=1e-6)
+        np.testing.assert_allclose(angles[4], angles[5], atol=1e-6)
+        jac = jax.jit(jax.vmap(jax.jacrev(lambda t: serial_ik(t, CARAMEL, LEFT)[0])))(targets)
+        grad = jax.jit(jax.vmap(jax.grad(lambda t: jnp.sum(serial_ik(t, CARAMEL, LEFT)[0]))))(targets)
+        assert np.all(np.isfinite(np.asarray(jac))) and np.all(np.isfinite(np.asarray(grad)))
+        np.testing.assert_array_equal(np.asarray(jac)[:4], 0.0)
+
+
+def test_regression_serial_ik_checked_blames_a_nan_target_on_being_non_finite():
+    # Regression: a NaN y was "inside the hip-offset cylinder", a NaN x "out of reach".
+    for target in ([0.0, np.nan, -0.2], [np.nan, 0.05, -0.2], [0.0, 0.05, np.inf]):
+        with pytest.raises(ValueError, match="not a finite number") as err:
+            serial_ik_checked(target, CARAMEL, LEFT)
+        assert "cylinder" not in str(err.value) and "out of reach" not in str(err.value)
 
 
 def test_joint_limits():
