@@ -52,8 +52,10 @@ class LocomotionEnv(Env):
     """A robot of quadson_mjx.robots (config key `robot`) on flat or rough ground; immutable after
     __init__. The robot supplies model, names, home pose, gait and the foot -> motor mapping."""
 
-    # info entries that restart from the first state when an episode ends (see wrappers.py)
+    # info entries that restart from the first state when an episode ends (see wrappers.py; the
+    # "sensors" observation adds its encoder and history buffers: `restart_info`)
     RESTART_INFO = ("gait_progress", "episode_time", "last_ctrl", "foot_targets")
+    SENSOR_RESTART_INFO = ("last_encoders", "obs_history")
     # per-step metrics besides the reward terms; brax's evaluator sums each over an episode
     STEP_METRICS = (
         "ik_invalid_legs",
@@ -91,8 +93,21 @@ class LocomotionEnv(Env):
         if n_sub < 1 or abs(n_sub * sim_dt - cfg.ctrl_dt) > 1e-9:
             raise ValueError(f"ctrl_dt {cfg.ctrl_dt} s is not a multiple of the model timestep {sim_dt} s")
         self._n_substeps = n_sub
-        self._obs_spec = obs_spec.locomotion_observation(robot.legs, robot.motor_joints, cfg.command_tracking)
         self._action_spec = obs_spec.locomotion_action(robot.legs, cfg.gait_action, cfg.action_scale_m)
+        self._sensor_obs = cfg.observation == "sensors"
+        if self._sensor_obs:
+            if not cfg.command_tracking:
+                raise ValueError("env.observation=sensors observes the command: it needs command_tracking")
+            self._obs_spec = obs_spec.sensor_observation(
+                robot.legs, robot.motor_joints, self._action_spec.size, cfg.obs_history
+            )
+        else:
+            self._obs_spec = obs_spec.locomotion_observation(
+                robot.legs, robot.motor_joints, cfg.command_tracking
+            )
+        self._critic_spec = (
+            obs_spec.privileged_observation(robot.legs, self._obs_spec) if cfg.asymmetric_critic else None
+        )
         self._ctrl_dt = float(cfg.ctrl_dt)
         self.episode_length = int(round(cfg.episode_length_s / cfg.ctrl_dt))
 
@@ -110,6 +125,10 @@ class LocomotionEnv(Env):
         self._seed_speed = float(gait.seed_speed(self._gait))
         self._forward_target = self._seed_speed if cfg.reward.target_gait_speed else cfg.reward.forward_target
         self._foot_geoms = jnp.asarray(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
+        # nominal values the privileged observation divides the randomized model's by
+        self._foot_radius = jnp.asarray(m.geom_size[np.asarray(self._foot_geoms), 0])
+        self._nominal_base_mass = float(m.body_mass[self._base_body])
+        self._nominal_gain = jnp.asarray(m.actuator_gainprm[np.asarray(self._actuator_of_motor), 0])
         root = int(m.body_jntadr[self._base_body])
         self._root_q = int(m.jnt_qposadr[root])
         self._root_v = int(m.jnt_dofadr[root])
@@ -122,8 +141,37 @@ class LocomotionEnv(Env):
 
     # --- brax Env interface -------------------------------------------------------------------
     @property
-    def observation_size(self) -> int:
-        return self.obs_spec.size
+    def observation_size(self):
+        """The actor's observation size; with asymmetric_critic brax's dictionary of shapes:
+        {"state": (actor,), "privileged_state": (critic,)} (PPO's policy_obs_key, value_obs_key)."""
+        if self._critic_spec is None:
+            return self.obs_spec.size
+        return {"state": (self.obs_spec.size,), "privileged_state": (self._critic_spec.size,)}
+
+    @property
+    def critic_spec(self) -> obs_spec.Spec | None:
+        """The critic's privileged observation (obs_spec.privileged_observation) with
+        asymmetric_critic, else None (the critic sees the actor's observation)."""
+        return self._critic_spec
+
+    @property
+    def restart_info(self) -> tuple[str, ...]:
+        """The info entries that restart from the first state when an episode ends."""
+        return self.RESTART_INFO + (self.SENSOR_RESTART_INFO if self._sensor_obs else ())
+
+    def actor_obs(self, obs):
+        """The actor's part of an observation (obs itself unless it is a dictionary)."""
+        return obs["state"] if isinstance(obs, dict) else obs
+
+    def with_command(self, obs, command):
+        """obs (..., size) or its dictionary with the command entry set to command (..., 3); the
+        entry sits at the same place in the actor's and the critic's observations."""
+        if not self._config.command_tracking:
+            return obs
+        where = self.obs_spec.slices()["command"]
+        if isinstance(obs, dict):
+            return {k: v.at[..., where].set(command) for k, v in obs.items()}
+        return obs.at[..., where].set(command)
 
     @property
     def action_size(self) -> int:
@@ -192,13 +240,17 @@ class LocomotionEnv(Env):
         push_timer = jax.random.uniform(
             k_push, (), minval=cfg.push.interval_s[0], maxval=cfg.push.interval_s[1]
         )
-        return {
+        info = {
             "command": command,
             "command_timer": command_timer,  # seconds until the next command [s]
             "latency_steps": latency_steps,
             "push_timer": push_timer,
             "rng": k_noise,
         }
+        if self._sensor_obs:  # a key of its own: the other draws stay those of a true_state config
+            timestep = float(self._mj_model.opt.timestep)
+            info.update(sensors.episode_sensor_errors(cfg, timestep, jax.random.fold_in(rng, 7)))
+        return info
 
     def reset(self, rng) -> State:
         k_info, k_yaw = jax.random.split(rng)
@@ -220,7 +272,10 @@ class LocomotionEnv(Env):
         }
         metrics = {f"reward/{k}": jnp.zeros(()) for k in self._config.reward.weights}
         metrics.update({k: jnp.zeros(()) for k in self.STEP_METRICS})
-        obs = self._get_obs(data, info)
+        if self._sensor_obs:
+            info["last_encoders"] = None  # the first reading: motor_vel 0, history filled with it
+            info["obs_history"] = None
+        obs, info = self._observe(data, info, None, (data.qpos, data.qvel), jnp.zeros(4, bool))
         return State(data, obs, jnp.zeros(()), jnp.zeros(()), metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -231,12 +286,20 @@ class LocomotionEnv(Env):
 
         def substep(data, i):
             c = jnp.where(i < info["latency_steps"], info["last_ctrl"], ctrl)
-            return mjx.step(self.sys, data.replace(ctrl=c)), None
+            data = mjx.step(self.sys, data.replace(ctrl=c))
+            return data, ((data.qpos, data.qvel) if self._sensor_obs else None)
 
         data = state.pipeline_state
         if cfg.pushes:
             data, info = self._maybe_push(data, info)
-        data, _ = jax.lax.scan(substep, data, jnp.arange(self._n_substeps))
+        start = (data.qpos, data.qvel)
+        data, path = jax.lax.scan(substep, data, jnp.arange(self._n_substeps))
+        sensed = None
+        if self._sensor_obs:  # the readings are sensor_latency_steps physics steps old
+            qpos_path = jnp.concatenate([start[0][None], path[0]])  # (n_sub + 1, nq)
+            qvel_path = jnp.concatenate([start[1][None], path[1]])
+            age = jnp.clip(info["sensor_latency_steps"], 0, self._n_substeps)
+            sensed = (qpos_path[self._n_substeps - age], qvel_path[self._n_substeps - age])
 
         info["gait_progress"] = jnp.mod(info["gait_progress"] + self._ctrl_dt / cycle_s, 1.0)
         info["episode_time"] = info["episode_time"] + self._ctrl_dt
@@ -270,8 +333,8 @@ class LocomotionEnv(Env):
                 cfg, self._seed_speed, info["command"], info["command_timer"] - self._ctrl_dt, info["rng"]
             )
         info["rng"] = jax.random.split(info["rng"])[0]  # fresh sensor noise every step
-        obs = self._get_obs(data, info, (rpy, lin_vel, ang_vel))
-        obs = jnp.where(sane, obs, 0.0)
+        obs, info = self._observe(data, info, (rpy, lin_vel, ang_vel), sensed, contact)
+        obs = jax.tree.map(lambda o: jnp.where(sane, o, 0.0), obs)
         reward = jnp.where(sane, reward, 0.0)
 
         metrics = dict(state.metrics)  # keep keys that wrappers added (brax's eval adds "reward")
@@ -369,15 +432,94 @@ class LocomotionEnv(Env):
         return sensors.base_state(data.qpos, data.qvel)
 
     def observation(self, qpos, qvel, info):
-        """The observation of a physics state given as qpos (nq,), qvel (nv,) (e.g. CPU MuJoCo's, or a
-        robot's estimate), at info's gait_progress and command; sensor noise as the config says."""
+        """The actor's observation of a physics state given as qpos (nq,), qvel (nv,) (e.g. CPU
+        MuJoCo's, or a robot's estimate), at info's gait_progress and command (and, for the
+        "sensors" observation, its last encoders, action and history); sensor noise as the config says."""
+        if self._sensor_obs:
+            parts, _ = self._sensor_parts(jnp.asarray(qpos), jnp.asarray(qvel), info)
+            return self._obs_spec.assemble(parts)
         return self._get_obs(_PhysicsState(jnp.asarray(qpos), jnp.asarray(qvel)), info)
+
+    def _phase(self, info):
+        return 2 * jnp.pi * gait.leg_phases(info["gait_progress"] * self._gait.cycle_s, self._gait)
+
+    def _sensor_parts(self, qpos, qvel, info):
+        """-> (entries of the "sensors" observation, info with its encoder and history buffers
+        moved on). qpos, qvel: the state the sensors read (sensor_latency_steps old)."""
+        readings = sensors.read_sensors(
+            self._config, qpos, qvel, qpos[self._motor_qpos], info, jax.random.fold_in(info["rng"], 3)
+        )
+        info = dict(info)
+        if info["last_encoders"] is None:  # reset: the first reading is also the one before
+            info["last_encoders"] = readings["motor_pos"]
+            first = {**readings, "motor_vel": jnp.zeros(12), "last_action": info["last_action"]}
+            block = sensors.history_block(first)
+            info["obs_history"] = jnp.tile(block[None], (self._config.obs_history - 1, 1))
+        parts, info["obs_history"] = sensors.sensor_observation_parts(
+            readings,
+            info["last_encoders"],
+            self._ctrl_dt,
+            info["last_action"],
+            info["obs_history"],
+            self._phase(info),
+            info["command"],
+        )
+        info["last_encoders"] = readings["motor_pos"]
+        return parts, info
+
+    def _observe(self, data, info, base_state, sensed, contact):
+        """-> (the observation: the actor's, or with asymmetric_critic {"state": actor,
+        "privileged_state": critic}; info with the sensor buffers moved on). sensed: (qpos, qvel)
+        the "sensors" observation reads; contact (4,) bool: the feet on the ground."""
+        if self._sensor_obs:
+            parts, info = self._sensor_parts(sensed[0], sensed[1], info)
+            actor = self._obs_spec.assemble(parts)
+        else:
+            actor = self._get_obs(data, info, base_state)
+            parts = self._obs_spec.split(actor)
+        if self._critic_spec is None:
+            return actor, info
+        critic = self._critic_spec.assemble({**parts, **self._privileged_parts(data, info, contact)})
+        return {"state": actor, "privileged_state": critic}, info
+
+    def _privileged_parts(self, data, info, contact) -> dict:
+        """The simulator-only entries of obs_spec.privileged_observation (the critic's view)."""
+        _, lin_vel, ang_vel = self._base_state(data)
+        ground = terrain.ground_height(self._field, data.qpos[:2])
+        feet = data.geom_xpos[self._foot_geoms]  # (4, 3) world, at the last substep's start
+        under_feet = terrain.ground_height(self._field, feet[:, :2])
+        sys = self.sys  # per-env under domain randomization
+        actuation_latency = info["latency_steps"] * sys.opt.timestep
+        sensor_latency = info.get("sensor_latency_steps", jnp.zeros((), jnp.int32)) * sys.opt.timestep
+        return {
+            "true_lin_vel": lin_vel,
+            "true_ang_vel": ang_vel,
+            "base_height": (data.qpos[2] - ground)[None],
+            "foot_contact": contact.astype(jnp.float32),
+            "foot_clearance": feet[:, 2] - self._foot_radius - under_feet,
+            "ground_under_feet": under_feet - ground,
+            "physics": jnp.stack(
+                [
+                    sys.geom_friction[self._foot_geoms[0], 0],
+                    sys.body_mass[self._base_body] / self._nominal_base_mass,
+                    jnp.mean(sys.actuator_gainprm[self._actuator_of_motor, 0] / self._nominal_gain),
+                    actuation_latency,
+                ]
+            ),
+            "sensor_model": jnp.concatenate(
+                [
+                    info.get("gyro_bias", jnp.zeros(3)),
+                    info.get("imu_tilt", jnp.zeros(2)),
+                    sensor_latency[None],
+                ]
+            ),
+        }
 
     def _get_obs(self, data, info, base_state=None):
         """The observation of `obs_spec` (seed 000's 29 values; + command when tracking), read by
         sensors.observation_parts. base_state: (rpy, lin_vel, ang_vel) when the caller has it."""
         rpy, lin_vel, ang_vel = self._base_state(data) if base_state is None else base_state
-        phase = 2 * jnp.pi * gait.leg_phases(info["gait_progress"] * self._gait.cycle_s, self._gait)
+        phase = self._phase(info)
         motor_pos = data.qpos[self._motor_qpos]
         parts = sensors.observation_parts(
             self._config, rpy, lin_vel, ang_vel, motor_pos, phase, info.get("command"), info.get("rng")

@@ -181,10 +181,7 @@ def _set_command(env, state, command):
     info = dict(state.info)
     info["command"] = jnp.broadcast_to(jnp.asarray(command, jnp.float32), info["command"].shape)
     info["command_timer"] = jnp.full_like(info["command_timer"], jnp.inf)  # fixed for the trial
-    obs = state.obs
-    if env.config.command_tracking:  # the command is the observation's tail
-        obs = obs.at[..., -3:].set(info["command"])
-    return state.replace(info=info, obs=obs)
+    return state.replace(info=info, obs=env.with_command(state.obs, info["command"]))
 
 
 def init_carry(env, controller: Controller, rng, n_envs: int, command=None) -> Carry:
@@ -239,7 +236,7 @@ def make_rollout(env, controller: Controller, n_steps: int, step_b=None):
         done = nxt.done.astype(bool)
         rec = Trajectory(
             episode_step=carry.episode_step + 1,
-            obs=carry.state.obs,
+            obs=env.actor_obs(carry.state.obs),
             action=action,
             foot_targets=nxt.info["foot_targets"],
             command=nxt.info["command"],

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from quadson_mjx.quat import quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.obs_spec import HISTORY_ENTRIES, lagged
+from quadson_mjx.quat import quat_mul, quat_rotate_inverse, quat_to_rpy
 
 
 def base_state(qpos, qvel):
@@ -44,3 +46,96 @@ def observation_parts(cfg, rpy, lin_vel, ang_vel, motor_pos, phase, command, rng
     if cfg.command_tracking:
         parts["command"] = command
     return parts
+
+
+# --- the robot's own sensors (the "sensors" observation, obs_spec.sensor_observation) ---------------
+
+
+def episode_sensor_errors(cfg, timestep: float, rng) -> dict:
+    """The sensor errors of one episode, drawn from cfg.sensor when cfg.randomize (else none):
+    gyro_bias (3,) [rad/s] uniform in +-gyro_bias_rps, imu_tilt (2,) roll and pitch of the IMU's
+    mounting [rad] uniform in +-imu_tilt_rad, sensor_latency_steps () int32: the readings' age in
+    physics timesteps (latency_s uniform, rounded to the model's timestep [s])."""
+    s = cfg.sensor
+    if not cfg.randomize:
+        return {
+            "gyro_bias": jnp.zeros(3),
+            "imu_tilt": jnp.zeros(2),
+            "sensor_latency_steps": jnp.zeros((), jnp.int32),
+        }
+    k_b, k_t, k_l = jax.random.split(rng, 3)
+    latency = jax.random.uniform(k_l, (), minval=s.latency_s[0], maxval=s.latency_s[1])
+    return {
+        "gyro_bias": jax.random.uniform(k_b, (3,), minval=-s.gyro_bias_rps, maxval=s.gyro_bias_rps),
+        "imu_tilt": jax.random.uniform(k_t, (2,), minval=-s.imu_tilt_rad, maxval=s.imu_tilt_rad),
+        "sensor_latency_steps": jnp.round(latency / timestep).astype(jnp.int32),
+    }
+
+
+def tilt_quat(roll_pitch):
+    """(..., 2) roll, pitch [rad] -> (..., 4) wxyz quaternion of R = Ry(pitch) Rx(roll) (ZYX, no yaw)."""
+    r, p = roll_pitch[..., 0] / 2, roll_pitch[..., 1] / 2
+    cr, sr, cp, sp = jnp.cos(r), jnp.sin(r), jnp.cos(p), jnp.sin(p)
+    return jnp.stack([cp * cr, cp * sr, sp * cr, -sp * sr], axis=-1)
+
+
+def gravity_direction(imu_quat):
+    """(..., 4) wxyz orientation of the IMU in a z-up world -> (..., 3) the unit gravity direction in
+    the IMU's frame ((0, 0, -1) when level); yaw-independent. The deploy loop computes the same."""
+    return quat_rotate_inverse(
+        imu_quat, jnp.broadcast_to(jnp.asarray([0.0, 0.0, -1.0]), imu_quat.shape[:-1] + (3,))
+    )
+
+
+def quantize(x, step: float):
+    """x rounded to multiples of step (an encoder's resolution [rad]); step 0: x unchanged."""
+    return x if step <= 0 else jnp.round(x / step) * step
+
+
+def read_sensors(cfg, qpos, qvel, motor_pos, errors: dict, rng) -> dict:
+    """What the IMU and the encoders report for a physics state: qpos (nq,), qvel (nv,) (free joint
+    first), motor_pos (12,) true motor angles [rad], errors: episode_sensor_errors, rng: noise key ->
+    gravity (3,) (the IMU, mounted with errors["imu_tilt"], sees the base's orientation times the
+    tilt), gyro (3,) [rad/s] (the base's angular velocity in the IMU frame + bias), motor_pos (12,)
+    [rad] (quantised to cfg.sensor.encoder_resolution_rad). When cfg.randomize, Gaussian noise of
+    cfg.sensor's stds is added (gravity_noise, gyro_noise_rps, encoder_noise_rad) before quantising."""
+    s = cfg.sensor
+    tilt = tilt_quat(errors["imu_tilt"])
+    gravity = gravity_direction(quat_mul(qpos[3:7], tilt))
+    gyro = quat_rotate_inverse(tilt, qvel[3:6]) + errors["gyro_bias"]
+    if cfg.randomize:
+        k = jax.random.split(jax.random.fold_in(rng, 2), 3)
+        gravity = gravity + s.gravity_noise * jax.random.normal(k[0], (3,))
+        gyro = gyro + s.gyro_noise_rps * jax.random.normal(k[1], (3,))
+        motor_pos = motor_pos + s.encoder_noise_rad * jax.random.normal(k[2], motor_pos.shape)
+    return {"gravity": gravity, "gyro": gyro, "motor_pos": quantize(motor_pos, s.encoder_resolution_rad)}
+
+
+def history_block(parts: dict) -> jax.Array:
+    """The entries of obs_spec.HISTORY_ENTRIES of one tick, concatenated: (3 + 3 + 12 + 12 + A,)."""
+    return jnp.concatenate([parts[n] for n in HISTORY_ENTRIES])
+
+
+def sensor_observation_parts(
+    readings: dict, last_encoders, ctrl_dt: float, last_action, history, phase, command
+) -> tuple[dict, jax.Array]:
+    """The entries of obs_spec.sensor_observation from one tick's readings (read_sensors),
+    last_encoders (12,): the previous tick's motor_pos reading (motor_vel is their difference over
+    ctrl_dt), last_action (A,), history (H - 1, block): earlier ticks' history_block, newest first,
+    phase (4,) [rad] (2 pi x the legs' gait phases), command (3,) -> (parts, the new history)."""
+    parts = {
+        "gravity": readings["gravity"],
+        "gyro": readings["gyro"],
+        "motor_pos": readings["motor_pos"],
+        "motor_vel": (readings["motor_pos"] - last_encoders) / ctrl_dt,
+        "last_action": last_action,
+        "phase_sin": jnp.sin(phase),
+        "phase_cos": jnp.cos(phase),
+        "command": command,
+    }
+    sizes = [parts[n].shape[-1] for n in HISTORY_ENTRIES]
+    for lag in range(1, history.shape[0] + 1):
+        pieces = jnp.split(history[lag - 1], np.cumsum(sizes)[:-1])
+        parts.update({lagged(n, lag): p for n, p in zip(HISTORY_ENTRIES, pieces, strict=True)})
+    new_history = jnp.concatenate([history_block(parts)[None], history[:-1]], axis=0)
+    return parts, new_history

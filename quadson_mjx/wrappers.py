@@ -22,7 +22,7 @@ class ResamplingAutoReset(Wrapper):
         state = self.env.reset(rng)
         state.info["first_pipeline_state"] = state.pipeline_state
         state.info["first_obs"] = state.obs
-        state.info["first_info"] = {k: state.info[k] for k in self.env.unwrapped.RESTART_INFO}
+        state.info["first_info"] = {k: state.info[k] for k in self.env.unwrapped.restart_info}
         state.info["reset_rng"] = jax.vmap(lambda k: jax.random.fold_in(k, 1))(rng)
         return state
 
@@ -53,9 +53,8 @@ class ResamplingAutoReset(Wrapper):
         info["last_action"] = jnp.where(done[:, None], 0.0, info["last_action"])
         first = state.info["first_pipeline_state"]
         pipeline_state = jax.tree.map(where_done, first, state.pipeline_state)
-        obs = where_done(state.info["first_obs"], state.obs)
-        if self.env.unwrapped.config.command_tracking:  # the command is the observation's tail
-            obs = obs.at[:, -3:].set(info["command"])
+        obs = jax.tree.map(where_done, state.info["first_obs"], state.obs)
+        obs = self.env.unwrapped.with_command(obs, info["command"])
         return state.replace(pipeline_state=pipeline_state, obs=obs, info=info)
 
 
