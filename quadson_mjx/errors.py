@@ -11,9 +11,11 @@ Standard library only: this module sits at the bottom of the package and the rob
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import errno
 import functools
+import math
 import os
 import sys
 import tempfile
@@ -25,6 +27,16 @@ EXIT_USAGE = 2  # the status of a bad input, as argparse uses it
 class UsageError(Exception):
     """Input a program cannot run with (a bad argument, a missing or damaged file, a config value out
     of range). The message is one line that names the input and, where there is one, the fix."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser whose errors (an unknown option, a value of the wrong type, a missing
+    argument) raise UsageError instead of printing the usage and exiting: under one_line_errors the
+    user sees one line, "error: MESSAGE (see PROG --help)", and exit status 2, like every other bad
+    input. --help still prints the help and exits 0."""
+
+    def error(self, message):
+        raise UsageError(f"{message} (see {self.prog} --help)")
 
 
 def one_line(exc: BaseException) -> str:
@@ -127,3 +139,19 @@ def check_readable(path, what: str = "input") -> Path:
     if not os.access(path, os.R_OK):
         raise UsageError(f"{what} {path}: not readable (permission denied)")
     return path
+
+
+def check_number(name: str, value, low: float = -math.inf, high: float = math.inf, *, above: bool = False):
+    """Raise UsageError unless `value` is a finite number with low <= value <= high (low < value
+    when `above`). `name` is the argument as the user typed it ("--seconds"). -> value."""
+    v = float(value)
+    ok = math.isfinite(v) and (v > low if above else v >= low) and v <= high
+    if not ok:
+        parts = []
+        if low > -math.inf:
+            parts.append(f"{'>' if above else '>='} {low:g}")
+        if high < math.inf:
+            parts.append(f"<= {high:g}")
+        bound = f" {' and '.join(parts)}" if parts else ""
+        raise UsageError(f"{name} {value}: must be a finite number{bound}")
+    return value
