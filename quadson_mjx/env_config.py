@@ -168,8 +168,14 @@ def env_config(
     joystick: bool = False,
     gait_recipe: bool = False,
     robot: str = "quadson",
+    observation: str = "true_state",
+    asymmetric_critic: bool = False,
 ) -> ml_collections.ConfigDict:
     """The environment config. Defaults reproduce seed 000's RL formulation.
+
+    observation: what the actor observes, "true_state" (seed 000's, with the simulator's base
+        velocity) or "sensors" (the robot's own sensors only; OBSERVATIONS); asymmetric_critic: the
+        critic observes the privileged state (obs_spec.privileged_observation).
 
     robot: "quadson" or "caramel" (quadson_mjx.robots); the robot's env_defaults replace the values
         below that it names (Caramel: its gait, action scale, height target, kernels, command range).
@@ -276,9 +282,9 @@ def env_config(
             # what the actor observes (OBSERVATIONS), how many ticks of its IMU, encoder and action
             # entries (obs_spec.HISTORY_ENTRIES), and whether the critic observes the privileged
             # state (obs_spec.privileged_observation; brax PPO's value_obs_key)
-            "observation": "true_state",
+            "observation": observation,
             "obs_history": 1,
-            "asymmetric_critic": False,
+            "asymmetric_critic": asymmetric_critic,
             "sensor": dict(SENSOR_MODEL),
             "randomize": randomize,
             "randomization": {

@@ -33,12 +33,28 @@ ENV_PRESETS = {
     "seed": {**FAST_PHYSICS},
     "command": {**FAST_PHYSICS, "command_tracking": True},
     # the joystick recipe (commands resampled every 4-8 s, 10 % zero, the sweep's range, base-in-ground
-    # termination) with randomization and pushes
-    "robust": {**FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
+    # termination) with randomization and pushes; the actor observes the robot's own sensors, the
+    # critic the simulator's state (asymmetric actor-critic)
+    "robust": {
+        **FAST_PHYSICS,
+        "joystick": True,
+        "randomize": True,
+        "pushes": True,
+        "observation": "sensors",
+        "asymmetric_critic": True,
+    },
+    # the same recipe with seed 000's observation (the simulator's base velocity and yaw), kept to
+    # compare with: results/policy_h100_joystick was trained with it
+    "robust_true_state": {**FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
 }
 
 # the word of each env preset in a task's name (the robust preset is the joystick recipe)
-PRESET_WORDS = {"seed": "", "command": "Command", "robust": "Joystick"}
+PRESET_WORDS = {
+    "seed": "",
+    "command": "Command",
+    "robust": "Joystick",
+    "robust_true_state": "JoystickTrueState",
+}
 
 
 def config_from_flags(
