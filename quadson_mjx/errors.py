@@ -86,6 +86,8 @@ def atomic_write(path, mode: str = "wb"):
     UsageError before writing anything when the folder is missing or not writable."""
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{path}: {folder} is a file, not a folder")
     if not folder.is_dir():
         raise UsageError(f"{path}: the folder {folder} does not exist; create it first")
     if path.is_dir():
@@ -122,6 +124,8 @@ def check_writable(path, what: str = "output") -> Path:
     folder = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise UsageError(f"{what} {path} is a folder, a file name is needed")
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{what} {path}: {folder} is a file, not a folder")
     if not folder.is_dir():
         raise UsageError(f"{what} {path}: the folder {folder} does not exist; create it first")
     if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):

@@ -17,15 +17,17 @@ time range, metadata, attachments and every damaged record. `--recover OUT` writ
 file with every readable message (schemas and channels kept), metadata record and intact attachment;
 OUT must not exist and is written whole or not at all. `--rollout` expects every topic of a rollout
 file (quadson_mjx.foxglove_mcap). quadson_mjx.mcap_decode turns a message (JSON or Foxglove protobuf) into a dict.
+A file that ends before its summary (a writer killed mid-write, e.g. an interrupted rollout) is
+reported as "truncated at byte N: ...; K complete messages recovered"; `--recover OUT` writes those
+K messages into a complete file.
 Exit status: 0 valid, 1 readable only in part (damaged or truncated), 2 unreadable, missing an
-expected topic, or a usage error (such as an OUT that exists).
+expected topic, or a usage error (one line on stderr: a missing input or a folder, an OUT that
+exists, is a folder or lies in a missing or read-only folder); a usage error writes nothing.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import struct
 import sys
 import zlib
@@ -56,6 +58,8 @@ from mcap.records import (
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 
+from quadson_mjx import errors
+from quadson_mjx.errors import UsageError
 from quadson_mjx.mcap_decode import decode
 
 ROLLOUT_TOPICS = ("/tf", "/scene", "/joint_states", "/odom", "/imu", "/rollout/step", "/log")
@@ -75,6 +79,7 @@ class Contents:
     metadata: list[Metadata] = field(default_factory=list)
     attachments: list[Attachment] = field(default_factory=list)
     damaged: list[str] = field(default_factory=list)  # "offset N: RECORD: why", in file order
+    truncated_at: int | None = None  # the file's length when it ends before its summary (killed writer)
     statistics: Statistics | None = None
     footer: Footer | None = None
     profile: str = ""
@@ -111,17 +116,31 @@ def _parse(opcode: int, body: bytes):
     return [reader(stream)]
 
 
+class _CutShort(ValueError):
+    """A record that runs past the end of the file."""
+
+
+# A streaming writer (foxglove's, which RolloutWriter uses) writes a chunk's header with this length
+# and fills it in when the chunk is finished: a file ending in it was killed while writing the chunk.
+_UNFINISHED_LENGTH = 2**64 - 1
+
+
 def _record_at(data: bytes, pos: int):
     """(opcode, body, records) of the record at `pos`; raises ValueError if it is not a whole,
-    parseable record."""
+    parseable record (_CutShort if it runs past the end of the file)."""
     if pos + _RECORD_HEADER > len(data):
-        raise ValueError(f"record header cut short: the file ends {len(data) - pos} bytes after it starts")
+        raise _CutShort(f"record header cut short: the file ends {len(data) - pos} bytes after it starts")
     opcode = data[pos]
     (length,) = struct.unpack_from("<Q", data, pos + 1)
     end = pos + _RECORD_HEADER + length
     name = _opcode_name(opcode)
     if end > len(data):
-        raise ValueError(f"{name} of {length} bytes cut short: the file ends {end - len(data)} bytes early")
+        if length == _UNFINISHED_LENGTH:
+            raise _CutShort(
+                f"{name} cut short: its length was never written (the writer was killed while writing "
+                f"it); the file ends {len(data) - pos} bytes into it"
+            )
+        raise _CutShort(f"{name} of {length} bytes cut short: the file ends {len(data) - pos} bytes into it")
     body = data[pos + _RECORD_HEADER : end]
     try:
         return opcode, body, _parse(opcode, body)
@@ -170,6 +189,8 @@ def read_contents(path: str | Path) -> Contents:
             out.damaged.append(f"offset {pos}: {e}")
             nxt = _resync(data, pos)
             if nxt is None:
+                if isinstance(e, _CutShort):  # the last record never ended: a killed writer
+                    out.truncated_at = len(data)
                 break
             out.damaged[-1] += f"; {nxt - pos} bytes skipped"
             pos = nxt
@@ -206,6 +227,7 @@ def read_contents(path: str | Path) -> Contents:
             break
     if out.footer is None and data_end is None and not out.damaged:
         out.damaged.append(f"offset {len(data)}: the file ends without a summary (the writer did not finish)")
+        out.truncated_at = len(data)
     return out
 
 
@@ -234,10 +256,16 @@ class Report:
     lost_messages: int = 0  # messages whose channel definition was in a damaged record
     metadata: list[str] = field(default_factory=list)
     attachments: list[str] = field(default_factory=list)
+    truncated_at: int | None = None  # the file ends here, before its summary (a killed writer)
 
     def lines(self) -> list[str]:
         state = "complete" if self.complete else "TRUNCATED/DAMAGED (readable part only)"
         out = [f"{self.path}: {state}"]
+        if self.truncated_at is not None:
+            out.append(
+                f"  truncated at byte {self.truncated_at}: the writer was killed (or has not finished); "
+                f"{sum(self.counts.values())} complete messages recovered"
+            )
         for problem in self.damaged[:20]:
             out.append(f"  damaged: {problem}")
         if len(self.damaged) > 20:
@@ -260,7 +288,7 @@ class Report:
 
 
 def _report(path, contents: Contents, sink=None) -> Report:
-    report = Report(str(path), damaged=list(contents.damaged))
+    report = Report(str(path), damaged=list(contents.damaged), truncated_at=contents.truncated_at)
     report.metadata = [m.name for m in contents.metadata]
     report.attachments = [a.name for a in contents.attachments]
     for message in contents.messages:
@@ -323,9 +351,10 @@ def recover(path: str | Path, out_path: str | Path) -> Report:
         raise FileExistsError(
             f"{out_path} {what}; --recover writes a new file: choose another name or remove it"
         )
-    contents = read_contents(path) if path.exists() else Contents(damaged=["file does not exist"])
-    tmp = out_path.with_name(out_path.name + ".partial")
-    with open(tmp, "wb") as f:
+    errors.check_readable(path, "input")  # a missing input leaves no (empty) output behind
+    errors.check_writable(out_path, "--recover")
+    contents = read_contents(path)
+    with errors.atomic_write(out_path, "wb") as f:
         writer = Writer(f)
         writer.start(profile=contents.profile, library="quadson_mjx.mcap_check")
         schema_ids: dict[int, int] = {}
@@ -357,12 +386,12 @@ def recover(path: str | Path, out_path: str | Path) -> Report:
         for a in contents.attachments:
             writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
         writer.finish()
-    os.replace(tmp, out_path)
     return report
 
 
+@errors.one_line_errors
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = errors.ArgumentParser(prog="python -m quadson_mjx.mcap_check", description=__doc__.split("\n\n")[0])
     p.add_argument("file")
     p.add_argument("--expect-topic", action="append", default=[], help="fail unless this topic has messages")
     p.add_argument("--rollout", action="store_true", help="expect every topic of a rollout file")
@@ -370,12 +399,12 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.rollout:
         args.expect_topic += [t for t in ROLLOUT_TOPICS if t not in args.expect_topic]
+    errors.check_readable(args.file, "input")
     if args.recover:
         try:
             report = recover(args.file, args.recover)
         except FileExistsError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
+            raise UsageError(str(e)) from None
     else:
         report = check(args.file)
     print("\n".join(report.lines()))
