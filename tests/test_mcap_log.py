@@ -159,3 +159,86 @@ def test_recover_never_overwrites_regression(tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
     assert cut.read_bytes() == before and other.read_bytes() == b"keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "other.mcap", "train.mcap"]
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert len([line for line in err.splitlines() if line.strip()]) == 1, err
+    assert err.startswith("error: ") and "Traceback" not in err, err
+    return err
+
+
+def _killed_rollout_file(path):
+    """A rollout writer (foxglove's streaming MCAP writer) killed after 30 flushed messages and 5
+    more: the bytes on disk at that moment, which end in the chunk header whose length the writer
+    fills in only when it finishes the chunk (2^64 - 1 until then)."""
+    from quadson_mjx.foxglove_mcap import RolloutWriter
+    from quadson_mjx.robots import get_robot
+
+    robot = get_robot("quadson")
+    live = path.with_name("live.mcap")
+    w = RolloutWriter(live, robot.load_model("flat"), 1, 0.02, robot.legs)
+    w.write_metadata("rollout", {"controller": "gait"})
+    for i in range(35):
+        w.log(1_000 * (i + 1), "info", f"message {i}")
+        if i % 10 == 9:
+            w.flush()
+    path.write_bytes(live.read_bytes())
+    w.close()
+    live.unlink()
+
+
+def test_regression_killed_rollout_reports_truncation_not_a_huge_chunk(tmp_path, capsys):
+    # Regression: mcap_check on a killed rollout reported "a CHUNK of 18446744073709551615 bytes cut
+    # short: the file ends 18446744073709551571 bytes early" (the streaming writer's placeholder
+    # length read as a length). Now: where the file ends and how many messages were kept.
+    cut = tmp_path / "killed.mcap"
+    _killed_rollout_file(cut)
+    size = cut.stat().st_size
+    report = mcap_check.check(cut)
+    assert not report.complete and report.truncated_at == size and report.counts["/log"] == 30
+    assert mcap_check.main([str(cut)]) == 1
+    out = capsys.readouterr().out
+    assert f"truncated at byte {size}: the writer was killed" in out
+    assert "30 complete messages recovered" in out and "18446744073709551" not in out
+    fixed = tmp_path / "fixed.mcap"
+    assert mcap_check.main([str(cut), "--recover", str(fixed)]) == 1
+    again = mcap_check.check(fixed)
+    assert again.complete and again.counts["/log"] == 30 and again.truncated_at is None
+
+
+def test_regression_mcap_check_bad_paths_are_one_line_usage_errors(tmp_path, capsys):
+    # Regression: a folder as input or as --recover OUT gave a traceback; a missing input with
+    # --recover wrote an empty "recovered" file. Each is one line and exit status 2, nothing written.
+    good = tmp_path / "train.mcap"
+    _write(good, 2)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    cases = [
+        ([str(tmp_path)], "is a folder"),
+        ([str(tmp_path / "missing.mcap")], "no such file"),
+        ([str(tmp_path / "missing.mcap"), "--recover", str(tmp_path / "out.mcap")], "no such file"),
+        ([str(good), "--recover", str(tmp_path)], "exists"),
+        ([str(good), "--recover", str(tmp_path / "no" / "out.mcap")], "does not exist"),
+        ([str(good), "--recover", str(good / "out.mcap")], "is a file, not a folder"),
+        ([str(good), "--no-such-flag"], "unrecognized arguments"),
+    ]
+    for argv, words in cases:
+        assert mcap_check.main(argv) == 2, argv
+        assert words in _one_line_error(capsys), argv
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_regression_mcap_check_read_only_output_folder_is_refused(tmp_path, capsys, monkeypatch):
+    # A read-only folder for --recover OUT. As root every folder is writable, so os.access is
+    # monkeypatched to answer as for a read-only folder (what errors.check_writable asks).
+    import os
+
+    good = tmp_path / "train.mcap"
+    _write(good, 2)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(ro) else real(p, mode))
+    assert mcap_check.main([str(good), "--recover", str(ro / "out.mcap")]) == 2
+    assert "not writable" in _one_line_error(capsys)
+    assert list(ro.iterdir()) == []
