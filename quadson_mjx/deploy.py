@@ -1,44 +1,44 @@
 """The policy on the robot: every control tick (20 ms) sensors -> observation -> policy -> gait +
-foot offsets -> five-bar IK -> 12 motor targets, exactly as the environment computes them.
+foot offsets -> IK (Quadson's five-bar, Caramel's serial legs) -> safety layer -> 12 motor targets,
+as the environment computes them.
 
-    loop = DeployLoop(load_policy("policy.onnx"))       # ONNX Runtime; a .npz runs on numpy alone
-    out = loop.step(imu_quat_wxyz, gyro, motor_pos, base_lin_vel, command)   # once per tick
-    send(out.motor_targets, out.valid)                  # (12,) [rad], (4,) bool per leg
+    loop = DeployLoop(load_policy("policy.onnx"))      # the robot, gait and observation from the file
+    loop.reset(motor_pos=encoders)                     # a walk starts from the encoders' reading
+    loop.reset_heading()                               # the IMU's yaw now is 0 (true_state policies)
+    out = loop.step(imu_quat_wxyz, gyro, motor_pos, command=(0.3, 0.0, 0.0))   # once per tick
+    send(out.motor_targets)                            # (12,) [rad]: always finite, in the limits
 
-    python -m quadson_mjx.deploy policy.onnx --bench 2000   # time one step on this computer
+    python -m quadson_mjx.deploy policy.onnx --bench 2000   # check the file, time one step here
 
-Imports numpy, quadson_mjx.robots.quadson.constants / gait_np, quadson_mjx.quat / obs_spec / export
-(numpy and array-api-compat) and, for an .onnx, onnxruntime:
-no jax, mujoco or brax. The gait, its start ramp and the clamped IK are gait_np's numpy versions of
-the simulator's JAX code; the env config (gait, swing, control period, ramp, action scale,
-observation options) comes from the metadata the export wrote into the policy file.
+Imports numpy, quadson_mjx.quat / obs_spec / export / deploy_* and the robot's numpy gait
+(robots/quadson/gait_np.py, robots/caramel/gait_np.py) and, for an .onnx, onnxruntime: no jax,
+mujoco or brax. The env config (robot, gait, control period, ramp, action scale, observation) comes
+from the metadata the export wrote into the policy file.
 
-Inputs of one step (SI, the body frame: x forward, y left, z up):
-  imu_quat_wxyz (4,)  base orientation in a gravity-aligned world frame (z up), w first; the
-                      observation's roll, pitch and yaw are its ZYX angles. yaw as the simulator saw
-                      it: 0 at the start of the walk (reset the IMU's heading there).
-  gyro (3,)           base angular velocity [rad/s], body frame (the IMU's gyroscope).
-  motor_pos (12,)     motor angles [rad], legs FL FR RL RR x (motor0, motor1, motor5), the angle
-                      convention of constants.py (the encoders, after their zero offsets).
-  base_lin_vel (3,)   base linear velocity [m/s], body frame. No sensor measures it: it comes from
-                      the robot's state estimator (e.g. leg odometry fused with the accelerometer),
-                      which this loop takes as an input and does not provide. The policy observed
-                      the simulator's true velocity in training (with noise if randomized).
-  command (3,)        (vx [m/s], vy [m/s], yaw rate [rad/s]): sets the gait's step and, for a
-                      command-tracking policy, is observed. Default: the gait's seed speed forward
-                      (what a policy trained without commands walked at).
-Output: StepResult with motor_targets (12,) [rad] in the order of motor_pos, valid (4,) (False: the
-leg's foot target was out of reach or beyond a limit and its angles are clamped, as in the
-simulator), the action, the observation and the foot targets (4, 3) [m].
+Inputs of one step (SI, the body frame: x forward, y left, z up), each of exactly its length
+(ValueError otherwise):
+  imu_quat_wxyz (4,)  base orientation in a gravity-aligned world frame (z up), w first.
+  gyro (3,)           base angular velocity [rad/s], body frame.
+  motor_pos (12,)     encoder angles [rad] in the file's motor order (metadata "motors"), the angle
+                      convention of the robot's constants (after the encoders' zero offsets).
+  command (3,)        (vx [m/s], vy [m/s], yaw rate [rad/s]); None: stand still (zero command).
+                      A command-tracking policy observes it (clipped to the trained command range);
+                      for a policy trained without commands it only sets the gait's step: pass
+                      loop.gait_command for the speed it was trained at.
+  base_lin_vel (3,)   only for a policy whose observation has an "estimator" entry (the old
+                      true_state policies): the base velocity [m/s] from a state estimator. A
+                      sensor-only policy refuses it.
+The observation is built from the file's spec (quadson_mjx.obs_spec) as deploy_observation does.
+Output: StepResult (motor_targets, valid, action, obs (alias observation), foot_targets, fault).
 
-The phase clock starts at 0 on reset() and advances one control period per step, as in an episode;
-the first gait_ramp_s blend from the home stance into the gait. Call step() every ctrl_dt:
-`run_loop` does, on a monotonic clock.
+The phase clock starts at 0 on reset() and advances one control period per step that runs the
+policy (it stops while a fault holds). The first gait_ramp_s blend from the home stance into the
+gait as in an episode; the encoders' offset from the home stance at reset() fades out with the same
+smoothstep, so a walk starts from where the motors are (see reset()).
 """
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -46,89 +46,60 @@ from typing import NamedTuple
 import numpy as np
 
 from quadson_mjx import obs_spec
-from quadson_mjx.quat import quat_to_rpy
-from quadson_mjx.robots.quadson import constants as C
-from quadson_mjx.robots.quadson import gait_np
+from quadson_mjx.deploy_observation import ObservationBuilder
+from quadson_mjx.deploy_policy import check_buildable, check_meta, load_policy
+from quadson_mjx.deploy_robots import RobotKinematics, robot_kinematics
+from quadson_mjx.deploy_safety import Fault, SafetyConfig, SafetyLayer, as_vector, check_sensors
 
-# --- the policy --------------------------------------------------------------------------------------
-
-
-class OnnxPolicy:
-    """An .onnx export run by ONNX Runtime on one CPU thread: obs (obs_size,) -> action (action_size,)."""
-
-    def __init__(self, path: str | Path, threads: int = 1):
-        import onnxruntime as ort
-
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads  # an MLP of 4 x 128: threads would cost more than they save
-        opts.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
-        props = self.session.get_modelmeta().custom_metadata_map
-        if "meta_json" not in props:
-            raise ValueError(f"{path}: not a quadson_mjx export (no meta_json in its metadata)")
-        self.meta = json.loads(props["meta_json"])
-        (inp,), (out,) = self.session.get_inputs(), self.session.get_outputs()
-        self.obs_size, self.action_size = int(inp.shape[1]), int(out.shape[1])
-        self._names = ([out.name], inp.name)
-
-    def __call__(self, obs) -> np.ndarray:
-        x = np.asarray(obs, np.float32).reshape(1, self.obs_size)
-        return self.session.run(self._names[0], {self._names[1]: x})[0][0]
-
-
-def load_policy(path: str | Path):
-    """An exported policy: .onnx (ONNX Runtime) or .npz (numpy, quadson_mjx.export.NumpyPolicy)."""
-    path = Path(path)
-    if path.suffix.lower() == ".onnx":
-        return OnnxPolicy(path)
-    if path.suffix.lower() == ".npz":
-        from quadson_mjx import export
-
-        return export.load(path)
-    raise ValueError(f"{path}: a policy file is *.onnx or *.npz (python -m quadson_mjx.export)")
-
-
-# --- the loop ----------------------------------------------------------------------------------------
+__all__ = ["DeployLoop", "Fault", "LoopConfig", "SafetyConfig", "StepResult", "load_policy", "run_loop"]
 
 
 class LoopConfig(NamedTuple):
     """What the loop needs from the run's env config (export metadata "env_config")."""
 
-    gait: gait_np.Gait
+    robot: RobotKinematics
     ctrl_dt: float  # s
     gait_ramp_s: float  # s
     action_scale_m: float  # m per unit action
     command_tracking: bool
     gait_action: bool
     gait_action_range: float
+    observation: str  # "sensors" or "true_state" (env_config.OBSERVATIONS)
+    obs_history: int
+    command_range: np.ndarray  # (3, 2) the trained command range (vx, vy, yaw rate)
 
     @classmethod
-    def from_env_config(cls, cfg: dict) -> LoopConfig:
-        """Raises ValueError for a policy of another robot than Quadson (the loop's gait and IK are
-        Quadson's)."""
-        robot = cfg.get("robot", "quadson")
-        if robot != "quadson":
-            raise ValueError(
-                f"the deployment loop runs Quadson's gait and five-bar IK; this policy is {robot}'s"
-            )
+    def from_env_config(cls, cfg: dict, meta: dict | None = None) -> LoopConfig:
+        """cfg: the env config as a dict; meta: the file's metadata (Caramel's geometry and gait)."""
+        rng = cfg.get("command_range", {})
         return cls(
-            gait=gait_np.gait_params(cfg["gait"], swing=cfg["swing"], scale=cfg.get("gait_scale")),
+            robot=robot_kinematics(cfg, meta),
             ctrl_dt=float(cfg["ctrl_dt"]),
             gait_ramp_s=float(cfg["gait_ramp_s"]),
             action_scale_m=float(cfg["action_scale_m"]),
             command_tracking=bool(cfg["command_tracking"]),
             gait_action=bool(cfg.get("gait_action", False)),
             gait_action_range=float(cfg.get("gait_action_range", 0.5)),
+            observation=str(cfg.get("observation", "true_state")),
+            obs_history=int(cfg.get("obs_history", 1)),
+            command_range=np.array([rng.get(k, (-np.inf, np.inf)) for k in ("vx", "vy", "yaw_rate")], float),
         )
 
     @property
+    def gait(self):
+        return self.robot.gait
+
+    @property
     def obs_spec(self) -> obs_spec.Spec:
-        """The observation this loop assembles: the environment's (quadson_mjx.obs_spec) for Quadson."""
-        return obs_spec.locomotion_observation(C.LEGS, C.MOTOR_JOINTS, self.command_tracking)
+        """The observation this loop assembles: the environment's (quadson_mjx.obs_spec)."""
+        r = self.robot
+        if self.observation == "sensors":
+            return obs_spec.sensor_observation(r.legs, r.motor_names, self.action_size, self.obs_history)
+        return obs_spec.locomotion_observation(r.legs, r.motor_names, self.command_tracking)
 
     @property
     def action_spec(self) -> obs_spec.Spec:
-        return obs_spec.locomotion_action(C.LEGS, self.gait_action, self.action_scale_m)
+        return obs_spec.locomotion_action(self.robot.legs, self.gait_action, self.action_scale_m)
 
     @property
     def obs_size(self) -> int:
@@ -140,94 +111,192 @@ class LoopConfig(NamedTuple):
 
 
 class StepResult(NamedTuple):
-    motor_targets: np.ndarray  # (12,) [rad], FL FR RL RR x (motor0, motor1, motor5)
-    valid: np.ndarray  # (4,) bool per leg: False where the IK clamped the target
-    action: np.ndarray  # (action_size,) in [-1, 1]
-    obs: np.ndarray  # (obs_size,) float32, what the policy saw
-    foot_targets: np.ndarray  # (4, 3) shoulder frames [m], gait + offsets
+    motor_targets: np.ndarray  # (12,) [rad] to send: finite, in the limits, rate-limited
+    valid: np.ndarray  # (4,) bool per leg: the IK solved the policy's target (False on a fault tick)
+    action: np.ndarray  # (action_size,) in [-1, 1] (the last one on a fault tick)
+    obs: np.ndarray  # (obs_size,) float32, what the policy saw (the last one on a fault tick)
+    foot_targets: np.ndarray  # (4, 3) gait frames [m], gait + offsets
+    fault: Fault = Fault.OK  # the safety layer's state this tick (deploy_safety.Fault, a str)
+
+    @property
+    def observation(self) -> np.ndarray:
+        return self.obs
+
+
+def _smoothstep(s: float) -> float:
+    s = min(max(s, 0.0), 1.0)
+    return s * s * (3.0 - 2.0 * s)
 
 
 class DeployLoop:
-    """One walk of a policy: the phase clock and the control step. Not thread-safe; one per robot."""
+    """One walk of a policy: phase clock, observation history, safety layer. Not thread-safe; one
+    per robot. safety: deploy_safety.SafetyConfig (default: its defaults, the robot's servo speed)."""
 
-    def __init__(self, policy, config: LoopConfig | None = None):
+    def __init__(self, policy, config: LoopConfig | None = None, safety: SafetyConfig | None = None):
         self.policy = policy
-        self.config = config or LoopConfig.from_env_config(policy.meta["env_config"])
-        c = self.config
-        self._obs_spec = c.obs_spec
+        meta = getattr(policy, "meta", {})
+        self.config = c = config or LoopConfig.from_env_config(meta["env_config"], meta)
         if (policy.obs_size, policy.action_size) != (c.obs_size, c.action_size):
             raise ValueError(
                 f"the policy takes {policy.obs_size} observations and gives {policy.action_size} actions; "
                 f"its env config implies {c.obs_size} and {c.action_size}"
             )
+        if "format_version" in meta:
+            check_meta(meta, "policy")
         for key, spec in (("obs_spec", c.obs_spec), ("action_spec", c.action_spec)):
             # files exported before the spec existed carry none; their layout is the one above
-            if key in policy.meta and obs_spec.Spec.from_json(policy.meta[key]) != spec:
+            if key in meta and obs_spec.Spec.from_json(meta[key]) != spec:
                 raise ValueError(
                     f"the policy file's {key} differs from the one this loop builds: "
-                    f"file {obs_spec.Spec.from_json(policy.meta[key]).describe()}; loop {spec.describe()}"
+                    f"file {obs_spec.Spec.from_json(meta[key]).describe()}; loop {spec.describe()}"
                 )
-        self.default_command = np.array([gait_np.seed_speed(c.gait), 0.0, 0.0])
+        check_buildable(c.obs_spec)
+        self.needs_lin_vel = "estimator" in c.obs_spec.sensors()
+        r = c.robot
+        safety = safety or SafetyConfig()
+        if safety.max_rate_rps is None:
+            safety = safety._replace(max_rate_rps=r.servo_speed_rps)
+        self.safety = SafetyLayer(safety, r.motor_limits, r.home_motor, c.ctrl_dt, clamp=r.clamp)
+        self.observer = ObservationBuilder(c.obs_spec, r, c.action_size)
+        # the command a policy trained without commands walked at (the gait's own speed)
+        self.gait_command = np.array([r.seed_speed, 0.0, 0.0])
         self.reset()
 
-    def reset(self) -> None:
-        """Restart the phase clock and the start ramp (a new episode)."""
+    # --- the walk's state ---------------------------------------------------------------------------
+    def reset(self, motor_pos=None) -> None:
+        """A new walk: phase clock and start ramp to 0, observation history and last action cleared,
+        the safety layer's targets set to motor_pos (12,) [rad] (the encoders now; None: the home
+        stance). The encoders' offset from the home stance is added to the targets and fades out
+        with the env's start-ramp smoothstep, so the first tick's targets are the encoders' reading
+        plus the env's first move from home. ValueError for a wrong length, a non-finite reading
+        or one beyond the limits by more than the safety margin."""
+        r = self.config.robot
+        start = r.home_motor.copy()
+        if motor_pos is not None:
+            start = as_vector(motor_pos, 12, "motor_pos")
+            why = check_sensors(self.safety.cfg, r.motor_limits, np.array([1.0, 0, 0, 0]), np.zeros(3), start)
+            if why:
+                raise ValueError(f"reset(motor_pos): the encoder reading is not usable ({', '.join(why)})")
+            start = r.clamp(start)
+        self._restart(start)
+        self.safety.reset(start)
+
+    def _restart(self, start) -> None:
         self.progress = 0.0  # fraction of the gait cycle, as the env's info["gait_progress"]
         self.time_s = 0.0  # time since reset, as info["episode_time"]
+        self.start_offset = np.asarray(start, np.float64) - self.config.robot.home_motor
+        self.observer.reset()
+        self._last = (
+            np.zeros(self.config.action_size, np.float32),
+            np.zeros(self.config.obs_size, np.float32),
+            self.config.robot.home_feet.copy(),
+        )
 
-    def observation(self, imu_quat_wxyz, gyro, motor_pos, base_lin_vel, command) -> np.ndarray:
-        """env._get_obs from sensor readings (see the module docstring): the entries of
-        config.obs_spec -> (obs_size,) float32."""
-        g = self.config.gait
-        phase = 2.0 * np.pi * gait_np.leg_phases(self.progress * g.cycle_s, g)
-        parts = {
-            "base_rpy": quat_to_rpy(np.asarray(imu_quat_wxyz, np.float64)),
-            "base_lin_vel": np.asarray(base_lin_vel, np.float64).reshape(3),
-            "base_ang_vel": np.asarray(gyro, np.float64).reshape(3),
-            "motor_pos": np.asarray(motor_pos, np.float64).reshape(12),
-            "phase_sin": np.sin(phase),
-            "phase_cos": np.cos(phase),
-        }
-        if self.config.command_tracking:
-            parts["command"] = np.asarray(command, np.float64).reshape(3)
-        return self._obs_spec.assemble(parts).astype(np.float32)
+    def reset_heading(self, imu_quat_wxyz=None) -> None:
+        """The IMU's yaw becomes 0: the given orientation's, else the last step's, else the next
+        step's. Roll and pitch are kept; only a true_state policy observes yaw."""
+        self.observer.reset_heading(imu_quat_wxyz)
 
+    @property
+    def fault_counts(self) -> dict:
+        """Reason -> ticks it was seen since the loop was made (deploy_safety.check_sensors' names,
+        "policy_nonfinite", "command_nonfinite", "no_sensors", "ik_invalid_leg", "ik_invalid_all")."""
+        return dict(self.safety.counts)
+
+    @property
+    def fault_ticks(self) -> int:
+        """Ticks spent in hold, easing_home or home."""
+        return self.safety.fault_ticks
+
+    # --- one tick ------------------------------------------------------------------------------------
     def targets(self, action, command) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """env._motor_targets at the current clock: -> (motor targets (12,), valid (4,), foot
-        targets (4, 3), the cycle time [s] this step runs at)."""
-        c = self.config
+        """env._motor_targets at the current clock (before the safety layer): -> (motor targets
+        (12,) [rad], valid (4,), foot targets (4, 3), the cycle time [s] this step runs at)."""
+        c, r = self.config, self.config.robot
         action = np.minimum(np.maximum(np.asarray(action, np.float64), -1.0), 1.0)
-        g, command = c.gait, np.asarray(command, np.float64)
+        g, command = r.gait, np.asarray(command, np.float64)
         if c.gait_action:  # the policy scales step length and cycle frequency
             length_scale = 1.0 + c.gait_action_range * action[12]
             freq_scale = 1.0 + c.gait_action_range * action[13]
-            g = g._replace(step_length_m=g.step_length_m * length_scale, cycle_s=g.cycle_s / freq_scale)
+            g = r.scaled_gait(length_scale, freq_scale)
             command = command * length_scale * freq_scale
-        feet = gait_np.ramped_gait_targets(self.progress, self.time_s, command, g, c.ctrl_dt, c.gait_ramp_s)
+        s = _smoothstep((self.time_s + c.ctrl_dt) / c.gait_ramp_s)
+        gait = r.foot_targets(self.progress * g.cycle_s, command, g)
+        feet = r.home_feet + s * (gait - r.home_feet)
         feet = feet + c.action_scale_m * action[:12].reshape(4, 3)
-        angles, valid = gait_np.motor_targets(feet)
-        return angles.reshape(12), valid, feet, g.cycle_s
+        angles, valid = r.motor_targets(feet)
+        angles = angles.reshape(12)
+        if s < 1.0 and np.any(self.start_offset):
+            angles = r.clamp(angles + (1.0 - s) * self.start_offset)
+        return angles, valid, feet, g.cycle_s
 
-    def step(self, imu_quat_wxyz, gyro, motor_pos, base_lin_vel, command=None) -> StepResult:
-        """One control tick: observe, act, compute the motor targets, advance the clock."""
-        command = self.default_command if command is None else np.asarray(command, np.float64)
-        obs = self.observation(imu_quat_wxyz, gyro, motor_pos, base_lin_vel, command)
-        action = np.asarray(self.policy(obs), np.float32)
+    def step(self, imu_quat_wxyz, gyro, motor_pos, command=None, base_lin_vel=None) -> StepResult:
+        """One control tick: check, observe, act, compute and filter the motor targets."""
+        c = self.config
+        quat = as_vector(imu_quat_wxyz, 4, "imu_quat_wxyz")
+        gyro = as_vector(gyro, 3, "gyro")
+        motor_pos = as_vector(motor_pos, 12, "motor_pos")
+        command = np.zeros(3) if command is None else as_vector(command, 3, "command")
+        if base_lin_vel is not None:
+            if not self.needs_lin_vel:
+                raise ValueError("base_lin_vel: this policy observes only the robot's sensors; pass none")
+            base_lin_vel = as_vector(base_lin_vel, 3, "base_lin_vel")
+        elif self.needs_lin_vel:
+            raise ValueError(
+                "base_lin_vel is required: this policy observes the base velocity (an estimator's)"
+            )
+        reasons = check_sensors(self.safety.cfg, c.robot.motor_limits, quat, gyro, motor_pos, base_lin_vel)
+        if not np.all(np.isfinite(command)):
+            reasons.append("command_nonfinite")
+        if reasons:
+            return self._fault(reasons)
+        if self.safety.restart_needed:  # back from a long fault: a new walk from where the motors are
+            self._restart(c.robot.clamp(motor_pos))
+        if c.command_tracking:
+            command = np.minimum(np.maximum(command, c.command_range[:, 0]), c.command_range[:, 1])
+        resync = self.safety.in_fault
+        obs = self.observer.observe(
+            quat, gyro, motor_pos, command, base_lin_vel, self.progress, c.ctrl_dt, resync
+        )
+        action = np.asarray(self.policy(obs), np.float32).reshape(-1)
+        if action.shape != (c.action_size,) or not np.all(np.isfinite(action)):
+            return self._fault(["policy_nonfinite"])
         motor, valid, feet, cycle_s = self.targets(action, command)
-        self.progress = (self.progress + self.config.ctrl_dt / cycle_s) % 1.0
-        self.time_s += self.config.ctrl_dt
-        return StepResult(motor, valid, action, obs, feet)
+        sent, fault = self.safety.filter(motor, valid)
+        action = np.minimum(np.maximum(action, -1.0), 1.0)
+        self.observer.commit(action)
+        self.progress = (self.progress + c.ctrl_dt / cycle_s) % 1.0
+        self.time_s += c.ctrl_dt
+        self._last = (action, obs, feet)
+        return StepResult(sent, valid, action, obs, feet, fault)
+
+    def _fault(self, reasons) -> StepResult:
+        sent, fault = self.safety.filter(None, None, reasons)
+        action, obs, feet = self._last
+        return StepResult(sent, np.zeros(4, bool), action, obs, feet, fault)
+
+    def step_without_sensors(self, reason: str = "no_sensors") -> StepResult:
+        """A tick whose sensors could not be read: hold, then ease home (the safety layer)."""
+        return self._fault([reason])
 
 
 def run_loop(loop: DeployLoop, read_sensors, send_targets, n_steps: int | None = None, clock=time.monotonic):
     """Every ctrl_dt on `clock`: send_targets(loop.step(**read_sensors())), for n_steps steps (None:
-    forever). read_sensors() -> dict of step()'s arguments. A step that overruns its tick is not made
-    up: the next step waits for the next tick boundary. -> number of overruns."""
+    forever). read_sensors() -> dict of step()'s arguments; when it raises an Exception the tick
+    holds (loop.step_without_sensors). Only the safety layer's targets are sent (StepResult's
+    motor_targets: finite, in the limits). A step that overruns its tick is not made up: the next
+    step waits for the next tick boundary. -> number of overruns."""
     dt = loop.config.ctrl_dt
     start = clock()
     tick = done = overruns = 0
     while n_steps is None or done < n_steps:
-        send_targets(loop.step(**read_sensors()))
+        try:
+            sensors = read_sensors()
+        except Exception:  # a bus error must not stop the servos' targets coming
+            out = loop.step_without_sensors("sensor_read_error")
+        else:
+            out = loop.step(**sensors)
+        send_targets(out)
         done += 1
         tick += 1
         now = clock()
@@ -242,14 +311,13 @@ def bench(path: str | Path, n_steps: int = 2000) -> dict:
     """Times DeployLoop.step on this computer with the home pose as the sensor reading ->
     {"median_ms", "p99_ms", "max_ms", "policy_median_ms"} over n_steps steps."""
     loop = DeployLoop(load_policy(path))
-    feet = gait_np.home_feet()
-    motor, _ = gait_np.motor_targets(feet)
     sensors = {
         "imu_quat_wxyz": np.array([1.0, 0.0, 0.0, 0.0]),
         "gyro": np.zeros(3),
-        "motor_pos": motor.reshape(12),
-        "base_lin_vel": np.zeros(3),
+        "motor_pos": loop.config.robot.home_motor.copy(),
     }
+    if loop.needs_lin_vel:
+        sensors["base_lin_vel"] = np.zeros(3)
     for _ in range(50):  # warm-up: first calls allocate
         loop.step(**sensors)
     steps, policy = [], []
@@ -269,23 +337,43 @@ def bench(path: str | Path, n_steps: int = 2000) -> dict:
     }
 
 
-def main(argv=None) -> int:
-    import argparse
-    import sys
-
-    p = argparse.ArgumentParser(prog="python -m quadson_mjx.deploy", description="Time the control step.")
-    p.add_argument("policy", help="exported policy, *.onnx or *.npz")
-    p.add_argument("--bench", type=int, default=2000, help="steps to time")
-    a = p.parse_args(argv)
-    if not Path(a.policy).is_file() or a.bench < 1:
-        print(f"{p.prog}: error: need an existing policy file and --bench >= 1", file=sys.stderr)
-        return 2
-    r = bench(a.policy, a.bench)
-    print(
-        f"{a.policy}: control step median {r['median_ms']:.3f} ms, p99 {r['p99_ms']:.3f} ms, "
-        f"max {r['max_ms']:.3f} ms (policy alone {r['policy_median_ms']:.3f} ms), {a.bench} steps"
+def describe(loop: DeployLoop) -> str:
+    """One line: robot, observation, sizes, control period."""
+    c = loop.config
+    return (
+        f"{c.robot.name}, {c.observation} observation ({c.obs_size} values), {c.action_size} actions, "
+        f"ctrl_dt {c.ctrl_dt} s, rate limit {loop.safety.cfg.max_rate_rps:g} rad/s"
     )
-    return 0
+
+
+def main(argv=None) -> int:
+    from quadson_mjx.errors import UsageError, one_line_errors
+
+    @one_line_errors
+    def run(argv):
+        from quadson_mjx.errors import ArgumentParser
+
+        p = ArgumentParser(
+            prog="python -m quadson_mjx.deploy", description="Check a policy file and time the control step."
+        )
+        p.add_argument("policy", help="exported policy, *.onnx or *.npz")
+        p.add_argument("--bench", type=int, default=2000, help="steps to time")
+        a = p.parse_args(argv)
+        if a.bench < 1:
+            raise UsageError(f"--bench {a.bench}: need at least 1 step")
+        try:
+            loop = DeployLoop(load_policy(a.policy))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        r = bench(a.policy, a.bench)
+        print(f"{a.policy}: {describe(loop)}")
+        print(
+            f"{a.policy}: control step median {r['median_ms']:.3f} ms, p99 {r['p99_ms']:.3f} ms, "
+            f"max {r['max_ms']:.3f} ms (policy alone {r['policy_median_ms']:.3f} ms), {a.bench} steps"
+        )
+        return 0
+
+    return run(argv)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-FORMAT_VERSION = 2  # 2 added "squash"; a version-1 file is a tanh_normal policy
+# 2 added "squash" (a version-1 file is a tanh_normal policy); 3 the robot's metadata (motors, home
+# pose, limits, trained sensor model, model identity, provenance) and format_version in meta_json
+FORMAT_VERSION = 3
+FORMAT_VERSIONS = (1, 2, 3)  # the versions the loaders (load, deploy_policy) read
 SUFFIXES = (".npz", ".onnx")
 ONNX_OPSET = 17  # every op used is older; ONNX Runtime >= 1.13 runs opset 17
 ONNX_IR_VERSION = 8  # the IR of opset 17: a newer one would shut out older runtimes
@@ -75,12 +78,10 @@ class NumpyPolicy:
 
 
 def load(path: str | Path) -> NumpyPolicy:
-    """Loads an exported .npz (numpy only)."""
-    with np.load(path, allow_pickle=False) as f:
-        arrays = {k: f[k] for k in f.files}
-    if int(arrays.get("format_version", -1)) not in (1, FORMAT_VERSION):
-        raise ValueError(f"{path}: export format {arrays.get('format_version')} is not 1 or {FORMAT_VERSION}")
-    return NumpyPolicy(arrays)
+    """Loads an exported .npz (numpy only; quadson_mjx.deploy_policy.load_npz, which checks it)."""
+    from quadson_mjx.deploy_policy import load_npz
+
+    return load_npz(path)
 
 
 def _policy_layers(policy: dict, distribution: str) -> list[dict]:
@@ -102,17 +103,28 @@ def _policy_layers(policy: dict, distribution: str) -> list[dict]:
     raise ValueError(f"cannot export a {distribution!r} policy")
 
 
+def _actor_stats(normalizer, key: str = "state"):
+    """(mean, std) of the actor's observation normaliser: with an asymmetric critic brax keeps one
+    per observation key ({"state": ..., "privileged_state": ...}) and the policy reads "state"."""
+    mean, std = normalizer.mean, normalizer.std
+    if isinstance(mean, dict):
+        mean, std = mean[key], std[key]
+    return np.asarray(mean, np.float32), np.asarray(std, np.float32)
+
+
 def export_arrays(
     params, obs_size: int, action_size: int, normalize: bool, meta: dict, distribution: str = "tanh_normal"
 ) -> dict:
-    """(normaliser, policy, value) params of a brax PPO checkpoint -> the .npz's arrays."""
+    """(normaliser, policy, value) params of a brax PPO checkpoint -> the .npz's arrays. obs_size:
+    the actor's observation size. Raises ValueError for non-finite weights or normaliser values."""
     normalizer, policy = params[0], params[1]
     layers = _policy_layers(policy, distribution)
     if normalize:
-        mean = np.asarray(normalizer.mean, np.float32)
-        std = np.asarray(normalizer.std, np.float32)
+        mean, std = _actor_stats(normalizer)
     else:
         mean, std = np.zeros(obs_size, np.float32), np.ones(obs_size, np.float32)
+    if mean.shape != (obs_size,):
+        raise ValueError(f"the normaliser has {mean.shape} values, the actor observes {obs_size}")
     out = {
         "format_version": np.int64(FORMAT_VERSION),
         "obs_mean": mean,
@@ -122,11 +134,17 @@ def export_arrays(
         "activation": np.str_("swish"),  # brax make_ppo_networks' default, used by training.make_networks
         "obs_size": np.int64(obs_size),
         "action_size": np.int64(action_size),
-        "meta_json": np.str_(json.dumps(meta)),
+        "meta_json": np.str_(json.dumps({**meta, "format_version": FORMAT_VERSION})),
     }
     for i, layer in enumerate(layers):
         out[f"kernel_{i}"] = np.asarray(layer["kernel"], np.float32)
         out[f"bias_{i}"] = np.asarray(layer["bias"], np.float32)
+    bad = [k for k, v in out.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
+    if bad or not np.all(std > 0):
+        raise ValueError(
+            f"the checkpoint's policy is not finite ({', '.join(bad) or 'obs_std <= 0'}): "
+            "a diverged run; export an earlier checkpoint with --checkpoint"
+        )
     want = 2 * action_size if distribution == "tanh_normal" else action_size
     if out[f"kernel_{len(layers) - 1}"].shape[1] != want:
         raise ValueError(
@@ -138,7 +156,9 @@ def export_arrays(
 
 def check_output(out_path: str | Path, overwrite: bool = False) -> Path:
     """The output path if it can be written: ValueError for an unknown suffix, FileExistsError for
-    an existing file without overwrite."""
+    an existing file without overwrite, errors.UsageError for a missing or read-only folder."""
+    from quadson_mjx.errors import check_writable
+
     out_path = Path(out_path)
     if out_path.suffix.lower() not in SUFFIXES:
         raise ValueError(
@@ -147,45 +167,130 @@ def check_output(out_path: str | Path, overwrite: bool = False) -> Path:
         )
     if out_path.exists() and not overwrite:
         raise FileExistsError(f"{out_path} exists: pass --overwrite to replace it, or choose another name")
-    return out_path
+    return check_writable(out_path, "output")
+
+
+def model_identity(robot, env_cfg) -> dict:
+    """The identity of the model a run trained on: sha256 of the MJCF that MuJoCo writes back for
+    env_model.training_model (the robot's scene with the config's physics options) and of its height
+    field, the physics timestep, and each motor's actuator gains (kp, kv, force range)."""
+    import hashlib
+    import tempfile
+
+    import mujoco
+
+    from quadson_mjx.env_model import name_ids, training_model
+
+    m = training_model(robot, env_cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "model.xml"
+        mujoco.mj_saveLastXML(str(path), m)  # the XML of the model just loaded, with m's values
+        xml = path.read_bytes()
+    ids = name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators)
+    return {
+        "mjcf_sha256": hashlib.sha256(xml).hexdigest(),
+        "hfield_sha256": hashlib.sha256(np.asarray(m.hfield_data, np.float32).tobytes()).hexdigest(),
+        "timestep_s": float(m.opt.timestep),
+        "actuator_gains": {
+            name: {
+                "kp": float(m.actuator_gainprm[i, 0]),
+                "kv": float(-m.actuator_biasprm[i, 2]),
+                "forcerange": [float(v) for v in m.actuator_forcerange[i]],
+            }
+            for name, i in zip(robot.actuators, ids, strict=True)
+        },
+    }
+
+
+def robot_meta(env) -> dict:
+    """What the robot's side needs to know of the robot: motor and actuator names and order, home
+    pose and limits (deploy_robots, from the numpy kinematics the loop runs), and for Caramel the
+    geometry and gait of its numpy IK and trot (robots/caramel/gait_np.py)."""
+    from quadson_mjx.deploy_robots import robot_kinematics
+    from quadson_mjx.robots.caramel import gait_np as caramel_np
+
+    cfg = json.loads(_config_json(env.config))
+    extra = {}
+    if env.robot.name == "caramel":
+        gait = {k: (np.asarray(v).tolist()) for k, v in env.gait_params._asdict().items()}
+        extra["caramel"] = {"geometry": caramel_np.geometry().to_dict(), "gait": gait}
+    r = robot_kinematics(cfg, extra)
+    if tuple(r.motor_names) != tuple(env.robot.motor_joints):
+        raise ValueError(f"{env.robot.name}: the deploy loop's motor order differs from the model's")
+    return {
+        "robot": r.name,
+        "motors": list(r.motor_names),
+        "actuators": list(r.actuator_names),
+        "home_motor_pos_rad": r.home_motor.tolist(),
+        "motor_limits_rad": r.motor_limits.tolist(),
+        "servo_speed_rps": r.servo_speed_rps,
+        **extra,
+    }
+
+
+def _config_json(cfg) -> str:
+    from quadson_mjx.config import to_json
+
+    return to_json(cfg)
 
 
 def export_run(
     run_dir: str | Path, out_path: str | Path, checkpoint: str | Path | None = None, overwrite: bool = False
 ) -> Path:
     """Exports the newest (or the given) checkpoint of a training run directory to out_path, a .npz
-    or an .onnx by its suffix, written under exactly that name. Raises (before loading anything)
-    ValueError for another suffix and FileExistsError if out_path exists and not overwrite."""
+    or an .onnx by its suffix, written atomically under exactly that name. Raises (before loading
+    anything) ValueError for another suffix, FileExistsError if out_path exists and not overwrite,
+    errors.UsageError for a folder that is missing or not writable; then ValueError for a checkpoint
+    of another run or robot, a damaged or non-finite one (training.load_checkpoint)."""
     out_path = check_output(out_path, overwrite)
     from quadson_mjx import training
-    from quadson_mjx.config import to_json
     from quadson_mjx.env import LocomotionEnv
+    from quadson_mjx.errors import atomic_write
     from quadson_mjx.provenance import versions
 
     env_cfg, ppo_cfg = training.load_run_config(run_dir)
     env = LocomotionEnv(env_cfg)
     path = Path(checkpoint) if checkpoint else training.latest_checkpoint(run_dir)[0]
     params = training.load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
+    run_config = json.loads((Path(run_dir) / "config.json").read_text())
+    cfg = env.config
+    spec = env.obs_spec
     meta = {
+        "format_version": FORMAT_VERSION,
         "checkpoint": str(path.name),
-        "env_config": json.loads(to_json(env_cfg)),
-        "ppo_config": json.loads(to_json(ppo_cfg)),
+        "env_config": json.loads(_config_json(env_cfg)),
+        "ppo_config": json.loads(_config_json(ppo_cfg)),
         "ctrl_dt_s": env.ctrl_dt,
         "action_scale_m": float(env_cfg.action_scale_m),
-        "obs_spec": env.obs_spec.to_json(),
+        "obs_spec": spec.to_json(),
+        "obs_names": list(spec.names),
         "action_spec": env.action_spec.to_json(),
-        "versions": versions(),
+        **robot_meta(env),
+        # the ranges the policy was trained with (env_config: sensor, noise, randomization)
+        "trained_sensor_model": {
+            "observation": cfg.observation,
+            "randomize": bool(cfg.randomize),
+            "sensor": json.loads(_config_json(cfg.sensor)) if "sensor" in cfg else {},
+            "noise": json.loads(_config_json(cfg.noise)),
+            "actuation_latency_s": list(cfg.randomization.latency_s),
+        },
+        "model": model_identity(env.robot, env_cfg),
+        # the training run's versions and commit (config.json), not this machine's
+        "provenance": run_config.get("versions", {}),
+        "exported_with": versions(),
     }
     arrays = export_arrays(
         params,
-        env.observation_size,
+        spec.size,
         env.action_size,
         bool(ppo_cfg.normalize_observations),
         meta,
         distribution=ppo_cfg.policy_distribution,
     )
     data = onnx_model(arrays).SerializeToString() if out_path.suffix.lower() == ".onnx" else None
-    with open(out_path, "wb" if overwrite else "xb") as f:  # "x": never replace a file that appeared
+    if out_path.exists() and not overwrite:  # appeared meanwhile
+        raise FileExistsError(f"{out_path} exists: pass --overwrite to replace it, or choose another name")
+    with atomic_write(out_path, "wb") as f:
         if data is not None:
             f.write(data)
         else:
@@ -254,7 +359,11 @@ def onnx_model(arrays: dict):
         ),
     )
     model.ir_version = ONNX_IR_VERSION
-    props = {"meta_json": json.dumps(policy.meta), "obs_layout": _layout(policy.meta, "obs_spec")}
+    props = {
+        "meta_json": json.dumps(policy.meta),
+        "obs_layout": _layout(policy.meta, "obs_spec"),
+        "format_version": str(policy.meta.get("format_version", FORMAT_VERSION)),
+    }
     for key in ("obs_spec", "action_spec"):
         if key in policy.meta:
             props[key] = policy.meta[key]
@@ -264,30 +373,36 @@ def onnx_model(arrays: dict):
 
 
 def main(argv=None) -> int:
-    """The command line; a bad argument prints one line and returns 2 before anything is loaded."""
-    import argparse
-    import sys
+    """The command line: every bad input (a bad argument, a run directory or checkpoint that cannot
+    be exported, an output that cannot be written) prints one line and returns 2."""
+    from quadson_mjx.errors import UsageError, one_line_errors
 
-    p = argparse.ArgumentParser(
-        prog="python -m quadson_mjx.export",
-        description="Export a trained policy to .npz (numpy inference) or .onnx (ONNX Runtime).",
-    )
-    p.add_argument("run_dir", help="training run directory (config.json, checkpoints/)")
-    p.add_argument("out", help="output file: *.npz or *.onnx")
-    p.add_argument("--checkpoint", default=None, help="checkpoint file (default: the run's newest)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    a = p.parse_args(argv)
-    try:
-        check_output(a.out, a.overwrite)
-        if not (Path(a.run_dir) / "config.json").is_file():
-            raise ValueError(f"{a.run_dir}: not a training run directory (no config.json in it)")
-        if a.checkpoint is not None and not Path(a.checkpoint).is_file():
-            raise ValueError(f"--checkpoint {a.checkpoint}: no such file")
-    except (ValueError, FileExistsError) as e:
-        print(f"{p.prog}: error: {e}", file=sys.stderr)
-        return 2
-    print(export_run(a.run_dir, a.out, a.checkpoint, overwrite=a.overwrite))
-    return 0
+    @one_line_errors
+    def run(argv):
+        from quadson_mjx.errors import ArgumentParser
+
+        p = ArgumentParser(
+            prog="python -m quadson_mjx.export",
+            description="Export a trained policy to .npz (numpy inference) or .onnx (ONNX Runtime).",
+        )
+        p.add_argument("run_dir", help="training run directory (config.json, checkpoints/)")
+        p.add_argument("out", help="output file: *.npz or *.onnx")
+        p.add_argument("--checkpoint", default=None, help="checkpoint file (default: the run's newest)")
+        p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+        a = p.parse_args(argv)
+        try:
+            check_output(a.out, a.overwrite)
+            if not (Path(a.run_dir) / "config.json").is_file():
+                raise ValueError(f"{a.run_dir}: not a training run directory (no config.json in it)")
+            if a.checkpoint is not None and not Path(a.checkpoint).is_file():
+                raise ValueError(f"--checkpoint {a.checkpoint}: no such file")
+            out = export_run(a.run_dir, a.out, a.checkpoint, overwrite=a.overwrite)
+        except (ValueError, FileExistsError, FileNotFoundError) as e:
+            raise UsageError(str(e)) from None
+        print(out)
+        return 0
+
+    return run(argv)
 
 
 if __name__ == "__main__":

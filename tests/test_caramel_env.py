@@ -234,15 +234,16 @@ def test_train_script_runs_caramel_and_stores_its_robot(caramel_run):
     assert script.main(["--resume", str(run_dir), "--robot", "caramel"]) == 2  # the saved config rules
 
 
-def test_caramel_policy_exports_and_the_quadson_deploy_loop_refuses_it(caramel_run, tmp_path):
+def test_caramel_policy_exports_with_its_motors_and_runs_in_the_deploy_loop(caramel_run, tmp_path):
     from quadson_mjx import deploy, export
 
     _, run_dir = caramel_run
     out = export.export_run(run_dir, tmp_path / "caramel.npz")
     policy = deploy.load_policy(out)
     assert policy.meta["env_config"]["robot"] == "caramel" and policy.obs_size == 32
-    with pytest.raises(ValueError, match="Quadson's gait and five-bar IK; this policy is caramel's"):
-        deploy.DeployLoop(policy)
+    assert policy.meta["motors"][:3] == ["FL_hip_roll_joint", "FL_hip_pitch_joint", "FL_knee_joint"]
+    loop = deploy.DeployLoop(policy)  # Caramel's own loop: serial IK, its trot
+    assert loop.config.robot.name == "caramel"
 
 
 def test_caramel_rollout_mcap_of_the_trained_policy(caramel_run, tmp_path):

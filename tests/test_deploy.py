@@ -276,7 +276,8 @@ def test_replayed_sensors_give_the_motor_targets_the_simulator_applied(replay):
                 sensors = (home[3:7], np.zeros(3), home_motor, np.zeros(3))
             else:  # what the sensors read at the end of the previous step
                 sensors = tuple(replay[n][i, k - 1] for n in ("quat", "gyro", "motor_pos", "lin_vel"))
-            out = loop.step(*sensors, command=replay["command"][i, k])
+            out = loop.step(*sensors[:3], command=replay["command"][i, k], base_lin_vel=sensors[3])
+            assert out.fault == "ok"
             for name in err:
                 err[name] = max(err[name], float(np.max(np.abs(getattr(out, name) - replay[name][i, k]))))
             np.testing.assert_allclose(
