@@ -1,0 +1,173 @@
+"""Sim-to-sim: exported policies closed loop through the deploy loop against MuJoCo C
+(quadson_mjx.sim2sim): falls, tracking RMS and invalid-IK steps per command, a table, a JSON summary,
+MCAP files for Foxglove and, on request, videos.
+
+    quadson-sim2sim /tmp/old.onnx --velocity-source true,zero,command --seeds 3 --out runs/s2s
+    quadson-sim2sim new.onnx old.onnx --terrain stones --randomize --pushes --latency-ms 60
+(`python eval/sim2sim.py ...` runs the same command.)
+
+Each policy runs every command of --commands (the 13-command sweep, each for --seconds; the step
+schedule vx 0 -> 0.4 -> 0 -> -0.2 m/s in four segments of --seconds / 4) on each terrain, with
+--seeds seeds (heading, sensor biases and noise, randomized model, pushes). A policy that observes
+the base velocity gets it from each --velocity-source; a sensor-only policy runs once. Writes
+OUT/summary.json (the command line, the plant's settings, one row per condition, one per run),
+OUT/mcap/*.mcap (the first seed's runs; --mcap all|none), OUT/video/*.mp4 with --video.
+Check a file: python -m quadson_mjx.mcap_check FILE --rollout. Bad input: one line, exit status 2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from quadson_mjx import sim2sim as S
+from quadson_mjx import sim2sim_model, sim2sim_plant
+from quadson_mjx.errors import (
+    ArgumentParser,
+    UsageError,
+    check_number,
+    check_readable,
+    one_line_errors,
+    write_text_atomic,
+)
+
+MAX_LATENCY_MS = 100.0
+
+
+def parse(argv):
+    p = ArgumentParser(prog="quadson-sim2sim", description=__doc__.split("\n\n")[0])
+    p.add_argument(
+        "policy", nargs="+", help="exported policy files (*.onnx or *.npz; python -m quadson_mjx.export)"
+    )
+    p.add_argument("--terrain", default="both", choices=("flat", "stones", "both"))
+    p.add_argument("--commands", default="all", choices=("sweep", "step", "all"))
+    p.add_argument(
+        "--seconds", type=float, default=20.0, help="per sweep command; the step schedule's total [s]"
+    )
+    p.add_argument("--latency-ms", type=float, default=20.0, help="servo latency after the loop's step [ms]")
+    p.add_argument(
+        "--randomize", action="store_true", help="randomized model (friction, masses, motors, CoM)"
+    )
+    p.add_argument("--pushes", action="store_true", help="horizontal velocity kicks at random intervals")
+    p.add_argument("--seeds", type=int, default=3, help="seeds 0 .. N-1 per command")
+    p.add_argument(
+        "--velocity-source",
+        default="true",
+        help="for a policy that observes the base velocity: true, zero, command (comma list) or all",
+    )
+    p.add_argument("--no-sensor-noise", action="store_true", help="ideal IMU and encoders")
+    p.add_argument("--out", default=None, help="output folder (default: runs/sim2sim_<time>)")
+    p.add_argument(
+        "--mcap", default="first", choices=("first", "all", "none"), help="which runs get an MCAP file"
+    )
+    p.add_argument("--video", action="store_true", help="also an .mp4 of each MCAP'd run (headless OpenGL)")
+    p.add_argument("--workers", type=int, default=1, help="processes running the runs")
+    p.add_argument("--per-command", action="store_true", help="also print one line per command and seed")
+    a = p.parse_args(argv)
+    check_number("--seconds", a.seconds, 1.0, 3600.0)
+    check_number("--latency-ms", a.latency_ms, 0.0, MAX_LATENCY_MS)
+    check_number("--seeds", a.seeds, 1, 1000)
+    check_number("--workers", a.workers, 1, 64)
+    sources = S.VELOCITY_SOURCES if a.velocity_source == "all" else tuple(a.velocity_source.split(","))
+    bad = [s for s in sources if s not in S.VELOCITY_SOURCES]
+    if bad or not sources:
+        raise UsageError(
+            f"--velocity-source {a.velocity_source}: choose from {', '.join(S.VELOCITY_SOURCES)} or all"
+        )
+    a.velocity_sources = sources
+    for path in a.policy:
+        check_readable(path, "policy")
+        if Path(path).suffix.lower() not in (".onnx", ".npz"):
+            raise UsageError(
+                f"policy {path}: a policy file is *.onnx or *.npz (python -m quadson_mjx.export)"
+            )
+        try:
+            S.LoopAdapter(path)
+        except (ValueError, KeyError) as e:
+            raise UsageError(f"policy {path}: the deploy loop refuses it: {e}") from e
+    return a
+
+
+@one_line_errors
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    a = parse(argv)
+    out = Path(a.out or f"runs/sim2sim_{time.strftime('%Y%m%d-%H%M%S')}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"--out {out}: cannot create the folder ({e.strerror})") from e
+    names = [Path(p).stem for p in a.policy]
+    policies = [
+        (f"{n}{i}" if names.count(n) > 1 else n, p)
+        for i, (n, p) in enumerate(zip(names, a.policy, strict=True))
+    ]
+    sensors = sim2sim_plant.SensorParams(enabled=not a.no_sensor_noise)
+    kw = dict(
+        terrains=S.TERRAINS if a.terrain == "both" else (a.terrain,),
+        which=a.commands,
+        seconds=a.seconds,
+        seeds=tuple(range(a.seeds)),
+        latency_s=a.latency_ms / 1000.0,
+        randomize=a.randomize,
+        pushes=a.pushes,
+        velocity_sources=a.velocity_sources,
+        out_dir=out if a.mcap != "none" else None,
+        mcap=a.mcap,
+        video=a.video,
+        sensors=sensors,
+    )
+    t0 = time.perf_counter()
+
+    def progress(done, total, row):
+        if a.per_command:
+            status = f"FELL at {row['fall_time_s']:.2f} s" if row["fell"] else "ok"
+            print(
+                f"[{done}/{total}] {row['policy_name']} {row['velocity_source']} {row['terrain']} {row['label']} "
+                f"seed {row['seed']}: {status}, "
+                f"rms vx {row['vx_rms']:.3f} vy {row['vy_rms']:.3f} yaw {row['yaw_rate_rms']:.3f}, "
+                f"ik invalid {row['invalid_ik_steps']}, {row['wall_s']:.1f} s",
+                flush=True,
+            )
+
+    rows = S.run_suite(policies, workers=a.workers, progress=progress, **kw)
+    wall = time.perf_counter() - t0
+    summary = S.summarize(rows)
+    print(S.format_table(summary))
+    sim_s = sum(r["steps"] for r in rows) * 0.02
+    print(f"{len(rows)} runs, {sim_s:.0f} s simulated in {wall:.1f} s wall ({a.workers} worker(s))")
+    result = {
+        "command": "python eval/sim2sim.py " + shlex.join(argv),
+        "settings": {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in kw.items()
+            if k not in ("out_dir", "sensors")
+        },
+        "plant": {
+            "timestep_s": sim2sim_model.TIMESTEP_S,
+            "servo": dataclasses.asdict(sim2sim_plant.ServoParams(latency_s=kw["latency_s"])),
+            "sensors": dataclasses.asdict(sensors),
+            "settle_s": sim2sim_plant.SETTLE_S,
+        },
+        "policies": {n: str(p) for n, p in policies},
+        "wall_s": wall,
+        "summary": summary,
+        "runs": rows,
+    }
+    write_text_atomic(out / "summary.json", json.dumps(result, indent=1, default=_jsonable) + "\n")
+    print(f"wrote {out / 'summary.json'}")
+    return 0
+
+
+def _jsonable(x):
+    if hasattr(x, "tolist"):
+        return x.tolist()
+    return str(x)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

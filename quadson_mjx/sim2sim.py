@@ -1,0 +1,416 @@
+"""Sim-to-sim: an exported policy (.onnx / .npz) closed loop through the deploy loop
+(quadson_mjx.deploy, the code the robot runs) against MuJoCo C (quadson_mjx.sim2sim_plant: another
+timestep, full contacts, another servo model with latency, IMU and encoder noise, bias and drift).
+
+    rows = run_suite(["old.onnx"], terrains=("flat", "stones"), schedules=sweep_and_step(20.0),
+                     seeds=(0, 1, 2), velocity_sources=("true", "zero", "command"))
+    print(format_table(summarize(rows)))
+
+Per run (one policy, terrain, command schedule, seed): falls (the env's termination: roll or pitch
+beyond max_tilt_rad, the base below min_height_m above the ground under it, the base box's bottom
+in the ground), tracking RMS of vx, vy (body frame) and yaw rate against the command over every
+control step after the first second (not smoothed), steps with an invalid IK leg. A fall ends the
+run. `summarize` pools runs per condition: the RMS over all their steps, falls as a share of runs.
+A policy that observes the base velocity (true_state) gets it from `velocity_source`: "true" (the
+simulator's), "zero" (no estimator) or "command" (the command as the estimate); a sensor-only
+policy gets none.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from quadson_mjx import deploy, obs_spec
+from quadson_mjx import sim2sim_plant as P
+from quadson_mjx.quat import quat_mul, quat_to_rpy
+from quadson_mjx.robots import get_robot
+
+VELOCITY_SOURCES = ("true", "zero", "command")
+TERRAINS = ("flat", "stones")
+WARMUP_S = 1.0  # tracking errors count after this much of a run [s]
+# The command sweep (vx [m/s], vy [m/s], yaw rate [rad/s]): standing, forward and back, sideways,
+# turning, and combinations, inside the training ranges (vx -0.3..0.5, vy +-0.2, yaw +-0.8)
+SWEEP = (
+    (0.0, 0.0, 0.0),
+    (0.15, 0.0, 0.0),
+    (0.3, 0.0, 0.0),
+    (0.5, 0.0, 0.0),
+    (-0.2, 0.0, 0.0),
+    (-0.3, 0.0, 0.0),
+    (0.0, 0.15, 0.0),
+    (0.0, -0.15, 0.0),
+    (0.0, 0.0, 0.5),
+    (0.0, 0.0, -0.5),
+    (0.3, 0.0, 0.4),
+    (0.2, 0.1, -0.3),
+    (0.4, -0.1, 0.2),
+)
+STEP_SCHEDULE = ((0.0, 0.0, 0.0), (0.4, 0.0, 0.0), (0.0, 0.0, 0.0), (-0.2, 0.0, 0.0))  # 5 s each
+DEFAULT_RANDOMIZATION = {
+    "friction": (0.5, 1.2),
+    "mass_scale": (0.85, 1.15),
+    "motor_strength": (0.8, 1.2),
+    "base_com_shift_m": (-0.02, 0.02),
+}
+DEFAULT_PUSH = {"interval_s": (2.0, 4.0), "speed_mps": (0.1, 0.4)}
+
+
+def step_schedule(segment_s: float = 5.0) -> tuple[str, tuple]:
+    return ("step", tuple((i * segment_s, c) for i, c in enumerate(STEP_SCHEDULE)))
+
+
+def schedules(which: str, seconds: float) -> list[tuple[str, tuple, float]]:
+    """which: "sweep" | "step" | "all" -> [(label, ((start_s, command), ...), duration_s)]: each
+    sweep command for `seconds`, the step schedule in four segments of seconds / 4."""
+    out = []
+    if which in ("sweep", "all"):
+        out += [(f"cmd{i:02d}", ((0.0, c),), seconds) for i, c in enumerate(SWEEP)]
+    if which in ("step", "all"):
+        label, sched = step_schedule(seconds / len(STEP_SCHEDULE))
+        out.append((label, sched, seconds))
+    if not out:
+        raise ValueError(f"unknown command set {which!r}: sweep, step or all")
+    return out
+
+
+def command_at(schedule, t: float) -> np.ndarray:
+    cmd = schedule[0][1]
+    for start, c in schedule:
+        if t + 1e-9 >= start:
+            cmd = c
+    return np.asarray(cmd, np.float64)
+
+
+# --- the deploy loop, as the robot drives it (the one place that knows its interface) -------------------
+
+
+class LoopAdapter:
+    """quadson_mjx.deploy's loop for one policy file: reset at the walk's start (encoders, heading),
+    step with the sensor readings and the command, the base velocity only for a policy that observes
+    it (velocity_source). Works with the loop's present interface and with the planned one
+    (reset(motor_pos=...), reset_heading(), step(..., command=None, base_lin_vel=None))."""
+
+    def __init__(self, policy_path, velocity_source: str = "true"):
+        if velocity_source not in VELOCITY_SOURCES:
+            raise ValueError(f"unknown velocity source {velocity_source!r}: {', '.join(VELOCITY_SOURCES)}")
+        self.policy = deploy.load_policy(policy_path)
+        self.meta = self.policy.meta
+        self.env_config = self.meta["env_config"]
+        self.loop = deploy.DeployLoop(self.policy)
+        needs = getattr(self.loop, "needs_lin_vel", None)  # the loop says whether it takes a velocity
+        if needs is None:
+            spec = obs_spec.Spec.from_json(self.meta["obs_spec"]) if "obs_spec" in self.meta else None
+            needs = spec is None or "estimator" in spec.sensors()  # files without a spec: true_state
+        self.observes_velocity = bool(needs)
+        self.velocity_source = velocity_source if self.observes_velocity else "none"
+        self._reset_takes_motor = "motor_pos" in inspect.signature(self.loop.reset).parameters
+        self._heading = np.array([1.0, 0.0, 0.0, 0.0])  # applied to the IMU while the loop has no reset
+
+    @property
+    def ctrl_dt(self) -> float:
+        return float(self.env_config["ctrl_dt"])
+
+    def reset(self, readings: P.Readings) -> None:
+        if self._reset_takes_motor:
+            self.loop.reset(motor_pos=readings.motor_pos)
+        else:
+            self.loop.reset()
+        if hasattr(self.loop, "reset_heading"):
+            self.loop.reset_heading(readings.imu_quat_wxyz)
+        else:  # the loop expects yaw 0 at the walk's start: the robot's code zeroes the IMU heading
+            yaw = float(quat_to_rpy(readings.imu_quat_wxyz)[2])
+            self._heading = np.array([math.cos(-yaw / 2), 0.0, 0.0, math.sin(-yaw / 2)])
+
+    def step(self, readings: P.Readings, command, true_lin_vel):
+        kw = {
+            "imu_quat_wxyz": quat_mul(self._heading, readings.imu_quat_wxyz),
+            "gyro": readings.gyro,
+            "motor_pos": readings.motor_pos,
+            "command": command,
+        }
+        if self.observes_velocity:
+            kw["base_lin_vel"] = {
+                "true": true_lin_vel,
+                "zero": np.zeros(3),
+                "command": np.array([command[0], command[1], 0.0]),
+            }[self.velocity_source]
+        return self.loop.step(**kw)
+
+    @staticmethod
+    def faulty(out) -> bool:
+        """The safety layer held or homed the motors this tick (a loop without one: never)."""
+        fault = getattr(out, "fault", None)
+        return fault is not None and str(fault) != "ok"
+
+
+# --- one run --------------------------------------------------------------------------------------------
+
+
+def make_plant(
+    robot,
+    env_config: dict,
+    terrain: str,
+    latency_s: float,
+    seed: int,
+    randomize: bool,
+    pushes: bool,
+    sensors: P.SensorParams | None = None,
+    servo: P.ServoParams | None = None,
+):
+    """A Plant for the policy's robot; randomization and push ranges from its env config."""
+    servo = servo or P.ServoParams(latency_s=latency_s)
+    rand = {**DEFAULT_RANDOMIZATION, **env_config.get("randomization", {})} if randomize else None
+    push = {**DEFAULT_PUSH, **env_config.get("push", {})} if pushes else None
+    model = P.plant_model(robot, terrain)
+    return P.Plant(robot, model, servo, sensors or P.SensorParams(), seed, rand, push)
+
+
+def run_episode(
+    adapter: LoopAdapter, plant: P.Plant, schedule, duration_s: float, seed: int = 0, recorder=None
+) -> dict:
+    """One closed-loop run: reset the plant at the origin with a seeded heading, start the loop on
+    its sensor readings, then every ctrl_dt: read, step the loop, send, advance the physics.
+    -> the run's metrics (see the module docstring)."""
+    term = {
+        "max_tilt_rad": math.pi / 4,
+        "min_height_m": 0.1,
+        "base_below_terrain": True,
+        "base_clearance_m": 0.0,
+    }
+    term.update(adapter.env_config.get("termination", {}))
+    dt = adapter.ctrl_dt
+    rng = np.random.default_rng(seed)
+    plant.reset((0.0, 0.0), float(rng.uniform(-math.pi, math.pi)))
+    adapter.reset(plant.read())
+    n = int(round(duration_s / dt))
+    err, invalid, faults, fell, fall_t, off = [], 0, 0, False, None, False
+    truth = plant.truth()
+    for k in range(n):
+        command = command_at(schedule, k * dt)
+        readings = plant.read()
+        out = adapter.step(readings, command, truth["lin_vel"])
+        plant.send(out.motor_targets)
+        plant.advance(dt)
+        truth = plant.truth()
+        t = (k + 1) * dt
+        if t > WARMUP_S + 1e-9:
+            err.append([truth["lin_vel"][0], truth["lin_vel"][1], truth["ang_vel"][2]] - command)
+        invalid += int(not np.all(out.valid))
+        faults += int(adapter.faulty(out))
+        r, p, _ = truth["rpy"]
+        fell = (
+            abs(r) > term["max_tilt_rad"]
+            or abs(p) > term["max_tilt_rad"]
+            or truth["height"] < term["min_height_m"]
+            or (term["base_below_terrain"] and truth["clearance"] < term["base_clearance_m"])
+        )
+        off = not truth["on_field"]
+        if recorder is not None:
+            recorder.step(k, plant, readings, out, command, truth, fell or off)
+        if fell or off:
+            fall_t = t if fell else None
+            break
+    e = np.asarray(err, np.float64).reshape(-1, 3)
+    sq = np.sum(e * e, axis=0)
+    return {
+        "fell": bool(fell),
+        "fall_time_s": fall_t,
+        "off_field": bool(off and not fell),
+        "steps": k + 1,
+        "tracked_steps": int(len(e)),
+        "sq_err_sum": sq.tolist(),  # for pooling runs
+        "vx_rms": _rms(sq[0], len(e)),
+        "vy_rms": _rms(sq[1], len(e)),
+        "yaw_rate_rms": _rms(sq[2], len(e)),
+        "invalid_ik_steps": invalid,
+        "fault_steps": faults,
+        "push_count": plant.pushes,
+    }
+
+
+def _rms(sq_sum: float, n: int) -> float | None:
+    return math.sqrt(sq_sum / n) if n else None
+
+
+# --- many runs ------------------------------------------------------------------------------------------
+
+
+def run_one(job: dict) -> dict:
+    """One job of run_suite (a plain dict, so that worker processes can take it) -> its row."""
+    t0 = time.perf_counter()
+    adapter = LoopAdapter(job["policy"], job["velocity_source"])
+    robot = get_robot(adapter.env_config.get("robot", "quadson"))
+    seed = job["seed"]
+    plant_seed = 1_000_003 * seed + 7919 * job["schedule_index"] + (17 if job["terrain"] == "stones" else 0)
+    plant = make_plant(
+        robot,
+        adapter.env_config,
+        job["terrain"],
+        job["latency_s"],
+        plant_seed,
+        job["randomize"],
+        job["pushes"],
+        sensors=job.get("sensors"),
+    )
+    recorder = None
+    if job.get("mcap") or job.get("video"):
+        from quadson_mjx.sim2sim_record import Recorder
+
+        recorder = Recorder(job.get("mcap"), job.get("video"), plant, adapter, job)
+    try:
+        row = run_episode(adapter, plant, job["schedule"], job["duration_s"], seed, recorder)
+    finally:
+        if recorder is not None:
+            recorder.close()
+    keys = ("policy_name", "terrain", "label", "seed", "latency_s", "randomize", "pushes")
+    return {
+        **{k: job[k] for k in keys},
+        "velocity_source": adapter.velocity_source,
+        "robot": robot.name,
+        "commands": [list(c) for _, c in job["schedule"]],
+        "duration_s": job["duration_s"],
+        **row,
+        "wall_s": time.perf_counter() - t0,
+    }
+
+
+def suite_jobs(
+    policies,
+    terrains=TERRAINS,
+    which="all",
+    seconds=20.0,
+    seeds=(0,),
+    latency_s=0.02,
+    randomize=False,
+    pushes=False,
+    velocity_sources=("true",),
+    out_dir=None,
+    mcap="first",
+    video=False,
+    sensors: P.SensorParams | None = None,
+) -> list[dict]:
+    """Every (policy, velocity source, terrain, schedule, seed) as a job for run_one. policies:
+    paths, or (name, path) pairs. A sensor-only policy runs once, whatever velocity_sources says.
+    mcap: "none" | "first" (the first seed's runs) | "all", written under out_dir/mcap/."""
+    jobs = []
+    for pol in policies:
+        name, path = pol if isinstance(pol, tuple) else (Path(pol).stem, pol)
+        sources = velocity_sources if LoopAdapter(path).observes_velocity else ("true",)
+        for vs in sources:
+            for terrain in terrains:
+                for si, (label, sched, dur) in enumerate(schedules(which, seconds)):
+                    for j, seed in enumerate(seeds):
+                        tag = f"{name}_{vs}_{terrain}_{label}_s{seed}"
+                        want = out_dir is not None and (mcap == "all" or (mcap == "first" and j == 0))
+                        jobs.append(
+                            {
+                                "policy": str(path),
+                                "policy_name": name,
+                                "velocity_source": vs,
+                                "terrain": terrain,
+                                "label": label,
+                                "schedule": sched,
+                                "schedule_index": si,
+                                "duration_s": dur,
+                                "seed": seed,
+                                "latency_s": latency_s,
+                                "randomize": randomize,
+                                "pushes": pushes,
+                                "mcap": str(Path(out_dir) / "mcap" / f"{tag}.mcap") if want else None,
+                                "video": str(Path(out_dir) / "video" / f"{tag}.mp4")
+                                if want and video
+                                else None,
+                                "sensors": sensors,
+                            }
+                        )
+    return jobs
+
+
+def run_suite(policies, workers: int = 1, progress=None, **kw) -> list[dict]:
+    """Runs every job of suite_jobs(policies, **kw) -> one row per run (run_one). workers > 1 runs
+    them in that many processes. progress(done, total, row) after each."""
+    jobs = suite_jobs(policies, **kw)
+    for j in jobs:
+        for f in ("mcap", "video"):
+            if j[f]:
+                Path(j[f]).parent.mkdir(parents=True, exist_ok=True)
+    rows = []
+    if workers <= 1:
+        for j in jobs:
+            rows.append(run_one(j))
+            if progress:
+                progress(len(rows), len(jobs), rows[-1])
+        return rows
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+        for row in ex.map(run_one, jobs):
+            rows.append(row)
+            if progress:
+                progress(len(rows), len(jobs), row)
+    return rows
+
+
+GROUP_KEYS = ("policy_name", "velocity_source", "terrain", "randomize", "pushes", "latency_s")
+
+
+def summarize(rows, by=GROUP_KEYS, split_step: bool = True) -> list[dict]:
+    """Pools runs per condition (and the step schedule apart from the sweep): runs, falls, fall
+    rate, RMS over every tracked step of the pooled runs, invalid-IK and fault steps."""
+    groups: dict[tuple, list] = {}
+    for r in rows:
+        key = tuple(r[k] for k in by) + (
+            (("step" if r["label"] == "step" else "sweep"),) if split_step else ()
+        )
+        groups.setdefault(key, []).append(r)
+    out = []
+    for key, rs in groups.items():
+        n = sum(r["tracked_steps"] for r in rs)
+        sq = np.sum([r["sq_err_sum"] for r in rs], axis=0)
+        out.append(
+            {
+                **dict(zip(by, key, strict=False)),
+                **({"commands": key[-1]} if split_step else {}),
+                "runs": len(rs),
+                "falls": sum(r["fell"] for r in rs),
+                "fall_rate": sum(r["fell"] for r in rs) / len(rs),
+                "off_field": sum(r["off_field"] for r in rs),
+                "vx_rms": _rms(sq[0], n),
+                "vy_rms": _rms(sq[1], n),
+                "yaw_rate_rms": _rms(sq[2], n),
+                "invalid_ik_steps": sum(r["invalid_ik_steps"] for r in rs),
+                "fault_steps": sum(r["fault_steps"] for r in rs),
+                "steps": sum(r["steps"] for r in rs),
+            }
+        )
+    return out
+
+
+def format_table(
+    summary,
+    columns=("policy_name", "velocity_source", "terrain", "commands", "randomize", "pushes", "latency_s"),
+) -> str:
+    """A plain-text table of summarize's rows."""
+    head = [*columns, "runs", "falls", "vx_rms", "vy_rms", "yaw_rms", "ik_inv"]
+    lines = [head]
+    for s in summary:
+        f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
+        lines.append(
+            [str(s.get(c, "")) for c in columns]
+            + [
+                str(s["runs"]),
+                f"{s['falls']} ({100 * s['fall_rate']:.0f}%)",
+                f(s["vx_rms"]),
+                f(s["vy_rms"]),
+                f(s["yaw_rate_rms"]),
+                str(s["invalid_ik_steps"]),
+            ]
+        )
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    return "\n".join("  ".join(x.ljust(w) for x, w in zip(line, widths, strict=True)) for line in lines)
