@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadson_mjx import mcap_check
+from quadson_mjx import errors, mcap_check
 
 BASE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw", "vx", "vy", "vz", "wx", "wy", "wz")
 
@@ -76,7 +76,10 @@ class Trial:
 
 
 def load_trial(path: str | Path) -> Trial:
-    """Reads a rollout file (a truncated one up to its last flush) into a Trial."""
+    """Reads a rollout file (a truncated one up to its last flush) into a Trial. Raises
+    errors.UsageError for a missing file or a folder, and for a file that is not a rollout MCAP
+    (not an MCAP file, or one without /rollout/step messages)."""
+    errors.check_readable(path, "rollout file")
     rollout = _metadata(path).get("rollout", {})
     steps: dict[int, list] = {}
 
@@ -87,7 +90,8 @@ def load_trial(path: str | Path) -> Trial:
 
     report = mcap_check.check(path, sink)
     if not steps:
-        raise ValueError(f"{path}: no /rollout/step messages")
+        why = report.error if report.error and not report.counts else "it has no /rollout/step messages"
+        raise errors.UsageError(f"{path}: not a rollout MCAP file ({why}); quadson-rollout writes them")
     n = min(len(v) for v in steps.values())
     envs = sorted(steps)
     base = {k: np.array([[_num(s["base"][k]) for s in steps[e][:n]] for e in envs]) for k in BASE_KEYS}
@@ -264,10 +268,15 @@ def _pm_deg(v) -> str:
     return f"{m:.3f} ± {s:.3f} ({math.degrees(m):.1f}° ± {math.degrees(s):.1f}°)"
 
 
+def _f3(v: float) -> str:
+    """A number to 3 decimals, or n/a where nothing was measured (an episode shorter than settle_s)."""
+    return f"{v:.3f}" if math.isfinite(v) else "n/a"
+
+
 def _tracking_row(s: dict) -> str:
     return (
-        f"{s['vx']:.3f} / {s['vy']:.3f} / {s['wz']:.3f} | {s['vx_avg']:.3f} / {s['vy_avg']:.3f} / "
-        f"{s['wz_avg']:.3f} | {s['falls']}/{s['episodes']} | {s['off_field']} | {s['below_s']:.2f} |"
+        f"{_f3(s['vx'])} / {_f3(s['vy'])} / {_f3(s['wz'])} | {_f3(s['vx_avg'])} / {_f3(s['vy_avg'])} / "
+        f"{_f3(s['wz_avg'])} | {s['falls']}/{s['episodes']} | {s['off_field']} | {s['below_s']:.2f} |"
     )
 
 

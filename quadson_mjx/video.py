@@ -7,6 +7,11 @@ OpenGL without a display: EGL (Mesa's software rasteriser llvmpipe on a CPU, the
 GPU) or OSMesa, chosen by MUJOCO_GL=egl|osmesa, else EGL when libEGL is installed, else OSMesa. The
 context is made here, so MUJOCO_GL need not be set before mujoco is imported. Frames are encoded by
 the ffmpeg binary of the imageio-ffmpeg package (pip install "quadson_mjx[video]").
+
+A video is written under a temporary name beside the target (".NAME.partial.mp4") and renamed to
+the target when closed, so the target is never a half-written file; `abort()` removes it instead.
+A bad path (not .mp4 or .gif, a folder, a missing or read-only folder, an existing file without
+overwrite) is refused when the writer is made, before any frame is rendered.
 """
 
 from __future__ import annotations
@@ -18,6 +23,8 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+
+from quadson_mjx import errors
 
 BACKENDS = ("egl", "osmesa")
 SUFFIXES = (".mp4", ".gif")
@@ -136,18 +143,30 @@ class Renderer:
         self.close()
 
 
+def check_video_path(path, overwrite: bool = False, what: str = "video") -> Path:
+    """Raise before anything is rendered: ValueError unless the name ends in .mp4 or .gif,
+    FileExistsError if it exists without overwrite, errors.UsageError for a folder or a missing or
+    read-only folder. -> Path(path)."""
+    path = Path(path)
+    if path.suffix.lower() not in SUFFIXES:
+        raise ValueError(f"{what} {path}: a video file name ends in .mp4 or .gif")
+    errors.check_writable(path, what)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists: pass overwrite=True (--overwrite) to replace it")
+    return path
+
+
 class VideoWriter:
-    """Frames (height, width, 3) uint8 -> an .mp4 (H.264, yuv420p) or a .gif (one palette) at fps."""
+    """Frames (height, width, 3) uint8 -> an .mp4 (H.264, yuv420p) or a .gif (one palette) at fps.
+    close() finishes the file and renames it into place; abort() discards it."""
 
     def __init__(self, path: str | Path, width: int, height: int, fps: float, overwrite: bool = False):
         import imageio_ffmpeg
 
-        self.path = Path(path)
+        self.path = check_video_path(path, overwrite)
         suffix = self.path.suffix.lower()
-        if suffix not in SUFFIXES:
-            raise ValueError(f"{self.path}: a video file name ends in .mp4 or .gif")
-        if self.path.exists() and not overwrite:
-            raise FileExistsError(f"{self.path} exists: pass overwrite=True (--overwrite) to replace it")
+        # ffmpeg picks the container from the suffix: keep it last in the temporary name
+        self._tmp = self.path.with_name(f".{self.path.stem}.partial{suffix}")
         if suffix == ".mp4" and (width % 2 or height % 2):
             raise ValueError(f"H.264 needs an even width and height, got {width} x {height}")
         if suffix == ".gif":
@@ -161,7 +180,7 @@ class VideoWriter:
             kw = {"codec": "libx264", "pix_fmt_out": "yuv420p", "quality": 7, "output_params": []}
         self.frames = 0
         self._gen = imageio_ffmpeg.write_frames(
-            str(self.path), (width, height), fps=fps, macro_block_size=1, ffmpeg_log_level="error", **kw
+            str(self._tmp), (width, height), fps=fps, macro_block_size=1, ffmpeg_log_level="error", **kw
         )
         self._gen.send(None)  # starts ffmpeg
 
@@ -170,9 +189,20 @@ class VideoWriter:
         self.frames += 1
 
     def close(self) -> None:
+        """Finish the file and rename it to `path`."""
         if self._gen is not None:
             self._gen.close()
             self._gen = None
+            os.replace(self._tmp, self.path)
+
+    def abort(self) -> None:
+        """Stop ffmpeg and remove the temporary file; `path` is left as it was."""
+        if self._gen is not None:
+            try:
+                self._gen.close()
+            finally:
+                self._gen = None
+                self._tmp.unlink(missing_ok=True)
 
 
 class RolloutVideo:
@@ -194,8 +224,7 @@ class RolloutVideo:
         try:
             self._renderer = Renderer(model, width, height)
         except Exception:
-            self._writer.close()
-            Path(path).unlink(missing_ok=True)
+            self._writer.abort()
             raise
 
     def add_segment(self, start: int, traj) -> None:
@@ -208,5 +237,11 @@ class RolloutVideo:
         return self._writer.frames
 
     def close(self) -> None:
+        """Finish the video (renamed into place)."""
         self._renderer.close()
         self._writer.close()
+
+    def abort(self) -> None:
+        """Discard the video (the rollout failed or was interrupted)."""
+        self._renderer.close()
+        self._writer.abort()

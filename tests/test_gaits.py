@@ -417,7 +417,14 @@ def gaits_cli():
         (["--gaits", ","], ["--gaits"]),
         (["--envs", "0"], ["--envs"]),
         (["--seconds", "1", "--settle-s", "1"], ["--seconds > --settle-s"]),
-        (["--settle-s", "-1"], ["--settle-s >= 0"]),
+        (["--settle-s", "-1"], ["--settle-s", ">= 0"]),
+        (["--seconds", "nan"], ["--seconds nan", "finite"]),  # regression: nan / inf episodes
+        (["--seconds", "inf"], ["--seconds inf", "finite"]),
+        (["--seconds", "1e12"], ["--seconds", "<= 3600"]),
+        (["--settle-s", "nan"], ["--settle-s nan", "finite"]),
+        (["--envs", "x"], ["--envs", "invalid int"]),
+        (["--json", "{tmp}/no/such/folder/g.json"], ["--json", "does not exist"]),
+        (["--json", "{tmp}/old.json/g.json"], ["--json", "not a folder"]),
         (["--runs", "{tmp}/missing"], ["missing", "not a directory"]),
         (["--json", "{tmp}/old.json"], ["old.json", "exists"]),
         (["--controllers", "gait,mpc"], ["--controllers"]),
@@ -426,14 +433,40 @@ def gaits_cli():
     ],
 )
 def test_gaits_cli_usage_errors_exit_2(gaits_cli, capsys, tmp_path, args, words):
+    # One line on stderr and exit status 2, before any episode runs; nothing written.
     (tmp_path / "old.json").write_text("{}")
     argv = [a.format(tmp=tmp_path) for a in args]
-    with pytest.raises(SystemExit) as e:
-        gaits_cli.main(argv)
-    assert e.value.code == 2
+    assert gaits_cli.main(argv) == 2
     err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and err.startswith("error: "), err
     assert all(w in err for w in words), err
     assert (tmp_path / "old.json").read_text() == "{}"
+    assert [p.name for p in tmp_path.iterdir()] == ["old.json"]
+
+
+def test_regression_gaits_cli_run_of_another_gait_is_refused_before_running(gaits_cli, capsys, tmp_path):
+    # RUNS/<gait> that is not a run, is damaged or trained another gait: one line before any
+    # episode (it used to fail with a traceback after the earlier gaits had run).
+    import shutil
+
+    run = tmp_path / "bound"
+    run.mkdir()
+    cases = [
+        (None, "no config.json"),
+        ("{not json", "not valid JSON"),
+        (
+            Path(__file__).parent / "data" / "legacy_run" / "config.json",
+            "trained the gait 'trot', not 'bound'",
+        ),
+    ]
+    for config, words in cases:
+        if isinstance(config, str):
+            (run / "config.json").write_text(config)
+        elif config is not None:
+            shutil.copy(config, run / "config.json")
+        assert gaits_cli.main(["--gaits", "bound", "--runs", str(tmp_path)]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and words in err, err
 
 
 @pytest.fixture(scope="module")

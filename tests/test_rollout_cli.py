@@ -24,7 +24,7 @@ def _usage_error(cli, capsys, argv) -> str:
     rc = cli.main(argv)
     err = capsys.readouterr().err
     assert rc == 2
-    assert err.count("\n") == 1 and err.startswith("rollout.py: error: "), err
+    assert err.count("\n") == 1 and err.startswith("error: "), err
     return err
 
 
@@ -75,5 +75,6 @@ def test_usage_error_from_the_shell_has_no_traceback(tmp_path):
         [sys.executable, str(SCRIPT), "--envs", "0", "--out", str(out)], capture_output=True, text=True
     )
     assert res.returncode == 2
-    assert res.stderr.strip().splitlines()[-1].startswith("rollout.py: error: --envs 0")
+    assert res.stderr.strip().splitlines() == [res.stderr.strip()]
+    assert res.stderr.startswith("error: --envs 0")
     assert "Traceback" not in res.stderr and not out.exists()

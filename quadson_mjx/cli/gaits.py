@@ -11,12 +11,15 @@ episode (friction, masses, servo strength, latency, centre of mass), in the gait
 (env_config(gait=G, gait_recipe=True) with the training's feet-only contact; a run's own config for
 its policy). Reported per row (quadson_mjx.gait_eval): falls, mean speed against the command,
 roll/pitch std, and how often the feet's contact (from contact forces) matches the gait's phase table.
-Prints a markdown table; --json writes every number.
+Prints a markdown table; --json writes every number (whole or not at all).
+A bad input (an unknown gait or controller, a non-finite or impossible time, an episode longer than
+MAX_SECONDS, a --json path that exists or lies in a missing or read-only folder, a run in RUNS/<gait>
+that does not load or trained another gait) exits with status 2 and one line on stderr, before any
+episode runs.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -24,20 +27,22 @@ from pathlib import Path
 
 import jax
 
-from quadson_mjx import gait_eval
+from quadson_mjx import errors, gait_eval
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import GAIT_RECIPES, SEED_EPISODE_S, env_config, with_added_keys
+from quadson_mjx.errors import UsageError
 from quadson_mjx.tasks import FAST_PHYSICS
 
 FIVE = ("walk", "trot", "pace", "bound", "gallop")
 # the training presets' physics, for gaits without a run
 TRAINING_PHYSICS = FAST_PHYSICS
+MAX_SECONDS = 3600.0  # longest episode [s]
 
 
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = errors.ArgumentParser(prog="quadson-gaits", description=__doc__.split("\n\n")[0])
     p.add_argument("--gaits", default=",".join(FIVE), help="comma-separated (default: all five)")
     p.add_argument("--runs", default=None, help="directory with one trained run per gait: RUNS/<gait>")
     p.add_argument("--envs", type=int, default=100, help="episodes per row")
@@ -59,6 +64,8 @@ def parse(argv):
     bad = [g for g in gaits if g not in GAIT_RECIPES]
     if bad or not gaits:
         p.error(f"--gaits: unknown {bad}; choose from {sorted(GAIT_RECIPES)}")
+    errors.check_number("--seconds", args.seconds, 0.0, MAX_SECONDS, above=True)
+    errors.check_number("--settle-s", args.settle_s, 0.0)
     if args.envs < 1 or not args.seconds > args.settle_s >= 0:
         p.error("need --envs >= 1 and --seconds > --settle-s >= 0")
     if args.runs and not Path(args.runs).is_dir():
@@ -71,7 +78,33 @@ def parse(argv):
         p.error("--footfalls needs 0 <= START_S < END_S <= --seconds")
     if args.json and Path(args.json).exists():
         p.error(f"--json {args.json} exists; give a new path")
+    if args.json:
+        errors.check_writable(args.json, "--json")
+    for g in gaits:
+        check_run(run_of(args, g), g)
     return args, gaits
+
+
+def run_of(args, gait: str) -> Path | None:
+    """RUNS/<gait> if it is a directory, else None (the gait has no trained run)."""
+    run = Path(args.runs) / gait if args.runs else None
+    return run if run is not None and run.is_dir() else None
+
+
+def check_run(run_dir: Path | None, gait: str) -> None:
+    """UsageError unless run_dir (if any) is a training run of `gait` whose config loads."""
+    if run_dir is None:
+        return
+    from quadson_mjx import training
+
+    if not (run_dir / "config.json").is_file():
+        raise UsageError(f"--runs: {run_dir} is not a training run directory (no config.json in it)")
+    try:
+        cfg = with_added_keys(training.load_run_config(run_dir)[0])
+    except ValueError as e:
+        raise UsageError(f"--runs: {run_dir}: {errors.one_line(e)}") from None
+    if cfg.gait != gait:
+        raise UsageError(f"--runs: {run_dir} trained the gait {cfg.gait!r}, not {gait!r}")
 
 
 def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
@@ -80,7 +113,10 @@ def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
 
     policy = None
     if run_dir is not None:
-        policy, env_cfg, _, _ = training.load_policy(run_dir)
+        try:
+            policy, env_cfg, _, _ = training.load_policy(run_dir)
+        except ValueError as e:
+            raise UsageError(f"--runs: {run_dir}: {errors.one_line(e)}") from None
         env_cfg = with_added_keys(env_cfg)
         if env_cfg.gait != gait:
             raise ValueError(f"{run_dir} trained the gait {env_cfg.gait!r}, not {gait!r}")
@@ -134,17 +170,16 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+@errors.one_line_errors
 def main(argv=None) -> int:
     args, gaits = parse(argv)
     rows = []
     for g in gaits:
-        run = Path(args.runs) / g if args.runs and (Path(args.runs) / g).is_dir() else None
-        rows.extend(rows_for_gait(g, run, args))
+        rows.extend(rows_for_gait(g, run_of(args, g), args))
     print(markdown(rows))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         meta = {"envs": args.envs, "seconds": args.seconds, "settle_s": args.settle_s, "seed": args.seed}
-        Path(args.json).write_text(json.dumps({"settings": meta, "rows": rows}, indent=2))
+        errors.write_text_atomic(args.json, json.dumps({"settings": meta, "rows": rows}, indent=2))
     return 0
 
 

@@ -8,15 +8,20 @@ time the base spent in the ground; per commanded value for the command sweep), O
 OUT_DIR/<terrain>_<task>.png: base velocity (vx, or yaw rate when turning), roll and pitch over time of
 environment 0 of every controller. Metrics: quadson_mjx.report. Files come from eval/rollout.py
 (`--suite` writes the whole comparison set).
+
+A bad input (a missing file or a folder, a file that is not a rollout MCAP, a window that is not a
+positive finite number of seconds) exits with status 2 and one line on stderr, before anything is
+written; the tables and plots are written whole or not at all (errors.atomic_write).
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from quadson_mjx import errors
 from quadson_mjx import report as R
+from quadson_mjx.errors import UsageError
 
 
 def plot(trials, out_dir: Path) -> list[Path]:
@@ -51,14 +56,37 @@ def plot(trials, out_dir: Path) -> list[Path]:
         fig.suptitle(f"{terrain} ground, {task}")
         fig.tight_layout()
         path = out_dir / f"{terrain.replace(', ', '_')}_{task}.png"
-        fig.savefig(path, dpi=110)
+        with errors.atomic_write(path, "wb") as f:
+            fig.savefig(f, format="png", dpi=110)
         plt.close(fig)
         written.append(path)
     return written
 
 
+def check_args(args) -> None:
+    """UsageError for a window that is not a positive finite number of seconds (a negative one gave
+    tables of NaN), a settle time below 0, and an input that is missing or a folder."""
+    errors.check_number("--window-s", args.window_s, 0.0, above=True)
+    errors.check_number("--settle-s", args.settle_s, 0.0)
+    errors.check_number("--avg-s", args.avg_s, 0.0, above=True)
+    for f in args.files:
+        errors.check_readable(f, "rollout file")
+
+
+def make_out_dir(out_dir: Path) -> None:
+    """Create --out-dir (and its parents); UsageError where it cannot be made or written."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(
+            f"--out-dir {out_dir}: cannot create it ({e.strerror or errors.one_line(e)})"
+        ) from None
+    errors.check_writable(out_dir / "report.md", "--out-dir")
+
+
+@errors.one_line_errors
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = errors.ArgumentParser(prog="quadson-report", description=__doc__.split("\n\n")[0])
     p.add_argument("files", nargs="+")
     p.add_argument("--out-dir", default="runs/compare")
     p.add_argument("--window-s", type=float, default=3.0, help="seed 000 trial length [s]")
@@ -67,12 +95,13 @@ def main(argv=None) -> int:
     )
     p.add_argument("--avg-s", type=float, default=0.8, help="moving mean of the averaged tracking error [s]")
     args = p.parse_args(argv)
+    check_args(args)
     out_dir = Path(args.out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    trials = [R.load_trial(f) for f in args.files]
+    trials = [R.load_trial(f) for f in args.files]  # every file read before anything is written
+    make_out_dir(out_dir)
     md = R.markdown(trials, args.window_s, args.settle_s, args.avg_s)
-    (out_dir / "report.md").write_text(md)
-    (out_dir / "report.json").write_text(R.summary_json(trials, args.window_s))
+    errors.write_text_atomic(out_dir / "report.md", md)
+    errors.write_text_atomic(out_dir / "report.json", R.summary_json(trials, args.window_s))
     pngs = plot(trials, out_dir)
     print(md)
     print(f"wrote {out_dir / 'report.md'}, {out_dir / 'report.json'}" + "".join(f", {p}" for p in pngs))

@@ -21,14 +21,18 @@ Env config keys can be overridden with --env.KEY=VALUE (named controllers only).
 `--video out.mp4` (or .gif) also renders the first environment, headless, at the control rate
 (quadson_mjx.video). Check a file: python -m quadson_mjx.mcap_check FILE --rollout
 
-A usage error (an impossible number, an output that exists without --overwrite, a missing run
-directory) exits with status 2 and one line naming the argument and the fix, before anything runs.
+A usage error exits with status 2 and one line on stderr naming the argument and the fix, before
+anything is compiled or written: an impossible or non-finite number (--vx nan), a trial longer than
+MAX_SECONDS (an hour), an unknown gait or --env key or a value the env config refuses, an output
+that exists without --overwrite, or that lies in a missing or read-only folder, a missing run
+directory. The MCAP file is written as OUT.partial and renamed to OUT when the rollout has finished
+(an interrupted rollout leaves OUT.partial, readable with quadson_mjx.mcap_check); a long rollout
+prints its progress after every segment.
 """
 
 from __future__ import annotations
 
-import argparse
-import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -36,12 +40,15 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from quadson_mjx import gait, recording
+from quadson_mjx import errors, gait, recording
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
-from quadson_mjx.env_config import env_config, with_added_keys
+from quadson_mjx.env_config import check_env_config, env_config, with_added_keys
+from quadson_mjx.errors import UsageError
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
+
+MAX_SECONDS = 3600.0  # longest trial [s]: an hour of one env is ~180k steps and several GB of MCAP
 
 SUITE_YAW_RATE = 0.25  # rad/s, seed 003's turning test
 # the command sweep: the joystick range of the issue, a 5 x 3 x 5 grid (75 envs, one command each)
@@ -65,7 +72,10 @@ def policy_ground_overrides(run_dir) -> list[str]:
         return []
     from quadson_mjx import training
 
-    cfg = with_added_keys(training.load_run_config(Path(run_dir))[0])
+    try:
+        cfg = with_added_keys(training.load_run_config(Path(run_dir))[0])
+    except ValueError as e:
+        raise UsageError(f"--run {run_dir}: {errors.one_line(e)}") from None
     return [
         f"base_terrain_contact={cfg.base_terrain_contact}",
         f"joint_limits={cfg.joint_limits}",
@@ -74,12 +84,10 @@ def policy_ground_overrides(run_dir) -> list[str]:
     ]
 
 
-class UsageError(Exception):
-    """A bad command line: main() prints it as one line and exits with status 2."""
-
-
 def parse(argv):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V")
+    p = errors.ArgumentParser(
+        prog="quadson-rollout", description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V"
+    )
     p.add_argument("--controller", default="gait", choices=R.CONTROLLERS)
     p.add_argument("--run", default=None, help="run directory of a trained policy (overrides --controller)")
     p.add_argument("--checkpoint", default=None, help="checkpoint file of --run (default: newest)")
@@ -118,31 +126,91 @@ def parse(argv):
     return args, [r[len("--env.") :] for r in rest]
 
 
-def check_args(args) -> None:
-    """Raises UsageError for values the rollout cannot run with, before anything is computed."""
+def check_args(args, overrides=()) -> None:
+    """Raises UsageError for values the rollout cannot run with, before anything is compiled or
+    written: numbers, the env configs the named controllers will run (gait, --env.KEY=V), the run
+    directory, and every output path (missing or read-only folder, a folder, exists)."""
     if args.envs < 1:
         raise UsageError(f"--envs {args.envs}: need at least 1 environment (e.g. --envs 1)")
-    if not args.seconds > 0 or not math.isfinite(args.seconds):
+    if not args.seconds > 0:
         raise UsageError(f"--seconds {args.seconds}: the trial length must be a positive number of seconds")
+    errors.check_number("--seconds", args.seconds, 0.0, MAX_SECONDS, above=True)
+    for flag, value in (("--vx", args.vx), ("--vy", args.vy), ("--yaw-rate", args.yaw_rate)):
+        if value is not None:
+            errors.check_number(flag, value)
     if args.viz_envs < 0:
         raise UsageError(f"--viz-envs {args.viz_envs}: must be >= 0 (0 draws no environment)")
     if args.segment_steps < 1:
         raise UsageError(f"--segment-steps {args.segment_steps}: must be >= 1")
     if args.run is not None and not (Path(args.run) / "config.json").is_file():
         raise UsageError(f"--run {args.run}: not a training run directory (no config.json in it)")
+    if args.checkpoint is not None and args.run is None:
+        raise UsageError(f"--checkpoint {args.checkpoint}: needs --run (the run directory it belongs to)")
     if args.checkpoint is not None and not Path(args.checkpoint).is_file():
         raise UsageError(f"--checkpoint {args.checkpoint}: no such file")
+    if args.run is not None and overrides:
+        raise UsageError(
+            f"--env.{overrides[0]}: --env overrides are not allowed with --run (the policy's env config is used)"
+        )
     if args.video is not None:
         if Path(args.video).suffix.lower() not in (".mp4", ".gif"):
             raise UsageError(f"--video {args.video}: the file name must end in .mp4 or .gif")
         if args.suite:
             raise UsageError("--video renders one rollout: leave it out of --suite")
         video_size(args.video_size)
-    outputs = suite_outputs(args) if args.suite else [Path(args.out)] if args.out else []
-    outputs += [Path(args.video)] if args.video else []
-    for out in outputs:
+    if args.suite:
+        named = [*policy_ground_overrides(args.run), *overrides]
+        for terrain in TERRAINS:
+            named_env_config(args, named, terrain)
+    elif args.run is None:
+        named_env_config(args, overrides, args.terrain)
+    check_outputs(args)
+
+
+def default_out(args) -> Path:
+    name = "policy" if args.run else args.controller
+    return Path(f"runs/rollout_{name}_{time.strftime('%Y%m%d-%H%M%S')}.mcap")
+
+
+def check_outputs(args) -> None:
+    """Every file the command will write: its folder exists (--out-dir and the default runs/ are
+    created) and is writable, it is not a folder, and it does not exist unless --overwrite."""
+    if args.suite:
+        folder, what = Path(args.out_dir), "--out-dir"
+    elif args.out is None:
+        args.out = str(default_out(args))
+        folder, what = Path(args.out).parent, "the default output folder"
+    else:
+        folder, what = None, None
+    if folder is not None:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise UsageError(
+                f"{what} {folder}: cannot create it ({e.strerror or errors.one_line(e)})"
+            ) from None
+    outputs = [("--out", p) for p in suite_outputs(args)] if args.suite else [("--out", Path(args.out))]
+    outputs += [("--video", Path(args.video))] if args.video else []
+    for flag, out in outputs:
+        errors.check_writable(out, flag)
         if out.exists() and not args.overwrite:
             raise UsageError(f"{out} exists: pass --overwrite to replace it, or choose another name")
+
+
+def named_env_config(args, overrides, terrain):
+    """The env config of a named controller (gait, pid): the robot's, --gait, the terrain, then the
+    overrides; UsageError naming the key for an unknown gait, key or a value out of range."""
+    extra = RANDOMIZE_OVERRIDES if args.randomize else []
+    try:
+        cfg = env_config(terrain=terrain or "flat", gait=args.gait, robot=args.robot)
+    except ValueError as e:
+        raise UsageError(f"--gait {args.gait}: {errors.one_line(e)}") from None
+    try:
+        cfg = apply_overrides(cfg, [*overrides, *extra], prefix="env.")
+        check_env_config(cfg)
+    except ValueError as e:
+        raise UsageError(errors.one_line(e)) from None
+    return cfg
 
 
 def video_size(text: str) -> tuple[int, int]:
@@ -177,7 +245,10 @@ def build(args, overrides, controller_name: str, terrain: str | None):
     if controller_name == "policy":
         from quadson_mjx import training
 
-        policy, env_cfg, _, _ = training.load_policy(Path(args.run), args.checkpoint)
+        try:
+            policy, env_cfg, _, _ = training.load_policy(Path(args.run), args.checkpoint)
+        except ValueError as e:
+            raise UsageError(f"--run {args.run}: {errors.one_line(e)}") from None
         if overrides:
             raise UsageError("--env overrides are not allowed with --run: the policy's env config is used")
         env_cfg = with_added_keys(env_cfg)
@@ -188,11 +259,7 @@ def build(args, overrides, controller_name: str, terrain: str | None):
         env = LocomotionEnv(env_cfg)
         ckpt = args.checkpoint or str(training.latest_checkpoint(Path(args.run))[0])
         return env, R.policy_controller(policy), {"run_dir": str(args.run), "checkpoint": ckpt}
-    extra = RANDOMIZE_OVERRIDES if args.randomize else []
-    env_cfg = apply_overrides(
-        env_config(terrain=terrain or "flat", gait=args.gait, robot=args.robot), [*overrides, *extra]
-    )
-    env = LocomotionEnv(env_cfg)
+    env = LocomotionEnv(named_env_config(args, overrides, terrain))
     return env, R.named_controller(env, controller_name), {"run_dir": "", "checkpoint": ""}
 
 
@@ -206,7 +273,6 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
     if n_steps < 1:
         raise UsageError(f"--seconds {args.seconds}: shorter than one control step ({env.ctrl_dt} s)")
     n_envs = len(command) if np.ndim(command) == 2 else args.envs
-    out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     video = None
     if args.video:
@@ -214,9 +280,12 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
 
         size = video_size(args.video_size)
         video = V.RolloutVideo(args.video, env.mj_model, env.ctrl_dt, overwrite=args.overwrite, size=size)
+    # written under a temporary name, renamed when complete: OUT is never a half-written file
+    partial = out.with_name(out.name + ".partial")
+    progress = Progress(partial, n_steps, env.ctrl_dt, args.segment_steps, video)
     try:
         summary = recording.record(
-            out,
+            partial,
             env,
             controller,
             jax.random.PRNGKey(args.seed),
@@ -225,14 +294,29 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
             command=command,
             segment_steps=args.segment_steps,
             metadata={**meta, "seed": args.seed, "trial_s": n_steps * env.ctrl_dt},
-            overwrite=args.overwrite,
+            overwrite=True,  # the partial file of an earlier, interrupted run
             viz_envs=args.viz_envs,
             randomize=args.randomize,
-            on_segment=None if video is None else video.add_segment,
+            on_segment=progress,
         )
-    finally:
+    except KeyboardInterrupt:
         if video is not None:
-            video.close()
+            video.abort()
+        if partial.exists():
+            print(
+                f"interrupted: the steps written so far are in {partial} "
+                f"(python -m quadson_mjx.mcap_check {partial} --recover {out})",
+                file=sys.stderr,
+            )
+        raise
+    except BaseException:
+        if video is not None:
+            video.abort()
+        partial.unlink(missing_ok=True)
+        raise
+    os.replace(partial, out)
+    if video is not None:
+        video.close()
     shown = "sweep" if np.ndim(command) == 2 else tuple(round(c, 3) for c in command)
     print(
         f"{out}: {controller.name}, {env.config.terrain}, command {shown}, "
@@ -241,14 +325,33 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
     )
 
 
+class Progress:
+    """on_segment of recording.record: renders the video's frames and, when the trial has more
+    than one segment, prints how far it is (simulated seconds, MCAP size, wall time) after each."""
+
+    def __init__(self, path: Path, n_steps: int, ctrl_dt: float, segment_steps: int, video=None):
+        self.path, self.n_steps, self.ctrl_dt, self.video = path, n_steps, ctrl_dt, video
+        self.show = n_steps > segment_steps
+        self.t0 = time.monotonic()
+
+    def __call__(self, start: int, traj) -> None:
+        if self.video is not None:
+            self.video.add_segment(start, traj)
+        if self.show:
+            done = start + traj.done.shape[0]
+            size = self.path.stat().st_size / 1e6 if self.path.exists() else 0.0
+            print(
+                f"  {done * self.ctrl_dt:.1f} / {self.n_steps * self.ctrl_dt:.1f} s simulated, "
+                f"{size:.1f} MB written, {time.monotonic() - self.t0:.0f} s",
+                flush=True,
+            )
+
+
+@errors.one_line_errors
 def main(argv=None) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
-    try:
-        check_args(args)
-        return _main(args, overrides)
-    except UsageError as e:
-        print(f"rollout.py: error: {e}", file=sys.stderr)
-        return 2
+    check_args(args, overrides)
+    return _main(args, overrides)
 
 
 def _main(args, overrides) -> int:
@@ -257,8 +360,7 @@ def _main(args, overrides) -> int:
         command = None if args.vx is None else (args.vx, args.vy, args.yaw_rate)
         if command is None and (args.vy or args.yaw_rate):
             command = (0.0, args.vy, args.yaw_rate)
-        out = Path(args.out or f"runs/rollout_{default_name}_{time.strftime('%Y%m%d-%H%M%S')}.mcap")
-        one(args, overrides, default_name, args.terrain, command, out)
+        one(args, overrides, default_name, args.terrain, command, Path(args.out))
         return 0
     names = [*R.CONTROLLERS, *(["policy"] if args.run else [])]
     out_dir = Path(args.out_dir)

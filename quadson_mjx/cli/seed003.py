@@ -6,7 +6,10 @@
 (`python eval/caramel_seed003.py ...` runs the same command.)
 
 Writes a JSON of the measured and published numbers and prints markdown tables (mean +- sample std).
-The experiments themselves are quadson_mjx.seed003.
+The experiments themselves are quadson_mjx.seed003. A bad input (fewer than one sample, a time limit
+that is not a positive finite number of seconds or above MAX_TIME_S, a --json path in a missing or
+read-only folder, a run directory that does not load) exits with status 2 and one line on stderr,
+before any sample runs; --json is written whole or not at all.
 """
 
 from __future__ import annotations
@@ -17,7 +20,10 @@ import sys
 import time
 from pathlib import Path
 
+from quadson_mjx import errors
 from quadson_mjx import seed003 as E
+
+MAX_TIME_S = 3600.0  # one walk's time limit at most [s] (the paper's walks take under 90 s)
 
 
 def _cell(pair, scale=1.0, digits=3) -> str:
@@ -70,13 +76,21 @@ def markdown(result: dict) -> str:
 
 def run(argv=None) -> dict:
     """The command line `argv` run: -> the result dict that --json writes."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = errors.ArgumentParser(
+        prog="quadson-seed003", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--samples-1", type=int, default=30, help="samples per test of Table I")
     ap.add_argument("--samples-23", type=int, default=10, help="samples per test of Tables II and III")
     ap.add_argument("--max-time-s", type=float, default=90.0, help="time limit of one walk [s]")
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
     ap.add_argument("--run", type=Path, default=None, help="a Caramel training run: add its policy's rows")
     args = ap.parse_args(argv)
+    for flag, n in (("--samples-1", args.samples_1), ("--samples-23", args.samples_23)):
+        if n < 1:  # 0 samples gave tables of NaN
+            raise errors.UsageError(f"{flag} {n}: need at least 1 sample (the paper: 30 and 10)")
+    errors.check_number("--max-time-s", args.max_time_s, 0.0, MAX_TIME_S, above=True)
+    if args.json is not None:
+        errors.check_writable(args.json, "--json")
     t0 = time.time()
     policy = None
     if args.run is not None:
@@ -97,11 +111,11 @@ def run(argv=None) -> dict:
     print(markdown(result))
     print(f"\n{result['wall_s']:.0f} s")
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2))
+        errors.write_text_atomic(args.json, json.dumps(result, indent=2))
     return result
 
 
+@errors.one_line_errors
 def main(argv=None) -> int:
     run(argv)
     return 0
