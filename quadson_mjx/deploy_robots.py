@@ -86,9 +86,12 @@ def caramel(env_cfg: dict, meta: dict | None) -> RobotKinematics:
     if data is not None:
         geo, g = gait_np.Geometry.from_dict(data["geometry"]), gait_np.gait_params(data["gait"])
     else:
+        import ml_collections
+
         from quadson_mjx.env_config import env_gait
 
-        geo, g = gait_np.geometry(), gait_np.gait_params(env_gait(env_cfg)._asdict())
+        g = env_gait(ml_collections.ConfigDict(env_cfg))
+        geo, g = gait_np.geometry(), gait_np.gait_params({k: np.asarray(v) for k, v in g._asdict().items()})
     home_feet = gait_np.nominal_feet(geo)
     home, _ = gait_np.motor_targets(home_feet, geo)
     limits = np.tile(geo.joint_limits, (4, 1))
