@@ -20,19 +20,25 @@ pitch [deg] (negative: nose up). The default swing is the seed's Bezier (apex h 
 --robot caramel runs seed 003's planner on Caramel instead (quadson_mjx.seed003
 .walk_sample, the walk of its Tables II-III, for --duration-s after standing 1 s; --pid adds seed
 003's stabilizer): mean velocity along the start heading, yaw rate, Δroll and Δpitch [deg].
+
+A bad input (a non-finite command, a trial that is not a positive number of seconds up to
+MAX_DURATION_S or no longer than the ramp, a control period that is not a multiple of the physics
+step, a --json path in a missing or read-only folder) exits with status 2 and one line on stderr,
+before anything runs; --json is written whole or not at all.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-from pathlib import Path
+import sys
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from quadson_mjx import errors
+from quadson_mjx.errors import UsageError
 from quadson_mjx.quat import quat_to_rpy
 from quadson_mjx.robots.quadson import fivebar
 from quadson_mjx.robots.quadson import gait as G
@@ -42,6 +48,7 @@ from quadson_mjx.swing import SWING_SHAPES
 FIVE = ("walk", "trot", "pace", "bound", "gallop")
 MIN_HEIGHT_M = 0.1
 MAX_TILT_DEG = 45.0
+MAX_DURATION_S = 3600.0  # longest trial [s]
 
 
 def planned_motor_targets(params, command, times, home_feet, ramp_s):
@@ -69,8 +76,10 @@ def run_trial(
     mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home"))
     mujoco.mj_forward(model, data)
     n_sub = round(ctrl_dt / model.opt.timestep)
-    if abs(n_sub * model.opt.timestep - ctrl_dt) > 1e-9:
-        raise ValueError(f"ctrl_dt {ctrl_dt} s is not a multiple of the timestep {model.opt.timestep} s")
+    if n_sub < 1 or abs(n_sub * model.opt.timestep - ctrl_dt) > 1e-9:
+        raise UsageError(
+            f"--ctrl-dt {ctrl_dt}: not a whole multiple of the physics timestep {model.opt.timestep} s"
+        )
     n = round(duration_s / ctrl_dt)
     times = np.arange(n) * ctrl_dt
     home_angles = M.home_ctrl(model)[ids.motor_actuator].reshape(4, 3)
@@ -164,13 +173,30 @@ def caramel_main(args, parser) -> int:
         f"{r['invalid_ticks']} ticks clamped"
     )
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(row, indent=2, default=float))
+        errors.write_text_atomic(args.json, json.dumps(row, indent=2, default=float))
     return 0
 
 
+def check_args(args) -> None:
+    """UsageError for numbers the trial cannot run with and an unwritable --json, before it runs."""
+    for flag, value in (("--vx", args.vx), ("--vy", args.vy), ("--yaw-rate", args.yaw_rate)):
+        if value is not None:
+            errors.check_number(flag, value)
+    errors.check_number("--duration-s", args.duration_s, 0.0, MAX_DURATION_S, above=True)
+    errors.check_number("--ctrl-dt", args.ctrl_dt, 0.0, 1.0, above=True)
+    errors.check_number("--ramp-s", args.ramp_s, 0.0)
+    if args.robot == "quadson" and not args.duration_s > args.ramp_s + args.ctrl_dt:
+        raise UsageError(
+            f"--duration-s {args.duration_s}: the trial must outlast the ramp (--ramp-s {args.ramp_s}) "
+            f"by at least one control step"
+        )
+    if args.json:
+        errors.check_writable(args.json, "--json")
+
+
+@errors.one_line_errors
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = errors.ArgumentParser(prog="quadson-gait", description=__doc__.split("\n\n")[0])
     p.add_argument("--gait", default="trot", choices=[*G.GAIT_NAMES, "all"])
     p.add_argument("--swing", default=None, choices=SWING_SHAPES, help="default: the gait's own")
     p.add_argument("--vx", type=float, default=None, help="m/s; default: the gait's seed speed")
@@ -184,6 +210,7 @@ def main(argv=None) -> int:
     p.add_argument("--robot", default="quadson", choices=["quadson", "caramel"])
     p.add_argument("--pid", action="store_true", help="caramel: seed 003's roll/pitch stabilizer")
     args = p.parse_args(argv)
+    check_args(args)
     if args.robot == "caramel":
         return caramel_main(args, p)
 
@@ -204,10 +231,9 @@ def main(argv=None) -> int:
         )
     print(_table(rows))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(rows, indent=2))
+        errors.write_text_atomic(args.json, json.dumps(rows, indent=2))
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())
