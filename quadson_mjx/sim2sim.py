@@ -98,7 +98,9 @@ class LoopAdapter:
     def __init__(self, policy_path, velocity_source: str = "true"):
         if velocity_source not in VELOCITY_SOURCES:
             raise ValueError(f"unknown velocity source {velocity_source!r}: {', '.join(VELOCITY_SOURCES)}")
-        self.policy = deploy.load_policy(policy_path)
+        # a file, or a loaded policy (obs_size, action_size, meta, __call__) as deploy.load_policy gives
+        is_path = isinstance(policy_path, str | Path)
+        self.policy = deploy.load_policy(policy_path) if is_path else policy_path
         self.meta = self.policy.meta
         self.env_config = self.meta["env_config"]
         self.loop = deploy.DeployLoop(self.policy)

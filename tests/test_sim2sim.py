@@ -1,0 +1,238 @@
+"""Sim-to-sim (quadson_mjx.sim2sim, sim2sim_plant, sim2sim_model): the servo and sensor models against
+hand-computed values, the plant's model against the robot's MJCF, and short closed loops on the CPU:
+the committed true_state policy exported to ONNX (MCAP written and read back) and a sensor-only
+policy (no velocity input) through the deploy loop.
+"""
+
+import json
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from quadson_mjx import mcap_check
+from quadson_mjx import sim2sim as S
+from quadson_mjx import sim2sim_plant as P
+from quadson_mjx.config import to_json
+from quadson_mjx.env_config import env_config
+from quadson_mjx.quat import quat_to_rpy
+from quadson_mjx.robots import get_robot
+from quadson_mjx.sim2sim_model import plant_model
+
+RUN = "results/policy_h100_joystick"
+KP, KD, PEAK = 25.2662, 0.402124, 3.43775  # Quadson's servo (robots/quadson/constants.py)
+W0, STALL = P.MOTOR_TORQUE_SPEED["quadson"]  # 62.83 rad/s, 6.875 N m
+QUIET = P.SensorParams(
+    gyro_noise=0.0, gyro_bias=0.0, gyro_bias_walk=0.0, attitude_noise=0.0, mount_tilt=0.0, encoder_noise=0.0
+)
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return get_robot("quadson")
+
+
+@pytest.fixture(scope="module")
+def flat(robot):
+    return plant_model(robot, "flat")
+
+
+def test_servo_torque_hand_values():
+    # PD: 25.2662 x 0.1 - 0.402124 x 2 = 2.52662 - 0.804248 = 1.722372 N m (below every limit)
+    assert P.servo_torque(0.1, 0.0, 2.0, KP, KD, PEAK, STALL, W0, 0.002) == pytest.approx(1.722372)
+    # the peak clamps: 25.2662 x 0.5 = 12.63 -> 3.43775 at rest
+    assert P.servo_torque(0.5, 0.0, 0.0, KP, 0.0, PEAK, STALL, W0, 0.002) == pytest.approx(PEAK)
+    # motoring at 3/4 of the no-load speed: at most 6.8755 x (1 - 0.75) = 1.71887 N m
+    w = 0.75 * W0
+    assert P.servo_torque(0.5, 0.0, w, KP, 0.0, PEAK, STALL, W0, 0.0) == pytest.approx(0.25 * STALL)
+    # braking (torque against the motion) keeps the peak; beyond the no-load speed no motoring torque
+    assert P.servo_torque(0.5, 0.0, -w, KP, 0.0, PEAK, STALL, W0, 0.0) == pytest.approx(PEAK)
+    assert P.servo_torque(0.5, 0.0, 1.2 * W0, KP, 0.0, PEAK, STALL, W0, 0.0) == 0.0
+    # inside the deadband only the damping acts: -0.402124 x 1 N m
+    assert P.servo_torque(0.0015, 0.0, 1.0, KP, KD, PEAK, STALL, W0, 0.002) == pytest.approx(-KD)
+    assert P.servo_torque(0.0025, 0.0, 0.0, KP, KD, PEAK, STALL, W0, 0.002) == pytest.approx(KP * 0.0025)
+    # without a speed limit (Caramel: back-EMF is the model's joint damping) only the peak
+    assert P.servo_torque(0.5, 0.0, 100.0, KP, 0.0, PEAK, None, None, 0.0) == pytest.approx(PEAK)
+    # Quadson's numbers: the 10 A limit holds up to half the no-load speed (constants.MOTOR_VELOCITY_LIMIT)
+    assert STALL * (1 - 31.4159265 / W0) == pytest.approx(PEAK, rel=1e-6)
+
+
+def test_plant_model_is_the_robots_mjcf_with_full_contacts_and_torque_motors(robot, flat):
+    src = robot.load_model("flat")
+    assert (flat.nbody, flat.njnt, flat.neq, flat.nu) == (src.nbody, src.njnt, src.neq, src.nu)
+    np.testing.assert_array_equal(flat.body_mass, src.body_mass)
+    assert flat.opt.timestep == 0.002 != src.opt.timestep
+    assert flat.opt.disableflags == 0
+    np.testing.assert_array_equal(flat.actuator_gainprm[:, 0], 1.0)
+    np.testing.assert_array_equal(flat.actuator_biasprm, 0.0)
+    # the MJCF's contacts: the 4 feet and the base box; here every geom of the legs touches the
+    # ground, and the other legs (not its own), and the base box the ground (its drawn twin: nothing)
+    base = mujoco.mj_name2id(flat, mujoco.mjtObj.mjOBJ_BODY, robot.root_body)
+    legs = np.flatnonzero(flat.geom_bodyid > base)
+    assert len(legs) == 24 and np.all(flat.geom_conaffinity[legs] & 1)
+    assert int(np.sum(src.geom_conaffinity[legs] > 0)) == 4
+    fl, fr = legs[flat.geom_bodyid[legs] == flat.geom_bodyid[legs][0]][0], legs[-1]
+    assert (
+        flat.geom_contype[fl] & flat.geom_conaffinity[fr]
+        and not flat.geom_contype[fl] & flat.geom_conaffinity[fl]
+    )
+    base_geoms = np.flatnonzero(flat.geom_bodyid == base)
+    collide = [g for g in base_geoms if flat.geom_conaffinity[g] or flat.geom_contype[g]]
+    assert [mujoco.mj_id2name(flat, mujoco.mjtObj.mjOBJ_GEOM, g) for g in collide] == ["base_collision"]
+
+
+def test_stone_field_is_trainings_tiled_and_the_start_is_on_stones(robot):
+    m = plant_model(robot, "stones")
+    rough = robot.load_model("rough")
+    d, dr = mujoco.MjData(m), mujoco.MjData(rough)
+    mujoco.mj_forward(m, d)
+    mujoco.mj_forward(rough, dr)
+    mask = np.array([1, 0, 0, 0, 0, 0], np.uint8)
+
+    def height(model, data, x, y):
+        return 10.0 - mujoco.mj_ray(
+            model, data, np.array([x, y, 10.0]), np.array([0, 0, -1.0]), mask, 1, -1, None
+        )
+
+    for x, y in [(1.0, 1.3), (-2.2, 0.7), (3.1, -3.3), (0.9, -0.45)]:  # away from the start patch: the same
+        assert height(m, d, x, y) == pytest.approx(height(rough, dr, x, y), abs=1e-9)
+    # mirrored at the field's edge x = 4 m: 4 + a has the height of 4 - a at the grid's points (between
+    # them MuJoCo's triangles run along the other diagonal)
+    for a in (0.04, 0.52, 1.2):
+        assert height(m, d, 4 + a, 0.72) == pytest.approx(height(m, d, 4 - a, 0.72), abs=1e-9)
+    # the training start patch (|x|, |y| < 0.3 m) is flat; here it has stones
+    xs = np.linspace(-0.28, 0.28, 29)
+    assert max(height(rough, dr, x, y) for x in xs for y in xs) == 0.0
+    assert max(height(m, d, x, y) for x in xs for y in xs) > 0.01
+
+
+def test_latency_is_whole_physics_steps(robot, flat):
+    assert P.latency_steps(0.02, 0.002) == 10  # one 20 ms control tick
+    assert P.latency_steps(0.06, 0.002) == 30
+    plant = P.Plant(robot, flat, P.ServoParams(latency_s=0.02), QUIET)
+    plant.reset()
+    new = plant.home_targets + 0.05
+    plant.send(new)
+    plant.advance(0.02)  # physics steps 0-9, the first 20 ms after sending: the old targets act
+    np.testing.assert_array_equal(plant.targets, plant.home_targets)
+    plant.advance(0.002)  # step 10 starts 20 ms after sending: the new ones
+    np.testing.assert_array_equal(plant.targets, new)
+
+
+def test_imu_reads_a_known_pose_with_mount_tilt_bias_and_heading_drift(robot, flat):
+    plant = P.Plant(robot, flat, P.ServoParams(), QUIET)
+    plant.reset(yaw=0.3)
+    d = plant.d
+    roll, pitch, yaw = 0.1, -0.2, 0.7
+    cr, sr, cp, sp, cy, sy = (f(a / 2) for a in (roll, pitch, yaw) for f in (math.cos, math.sin))
+    # ZYX: q = qz(yaw) qy(pitch) qx(roll)
+    q = np.array([
+        cy * cp * cr + sy * sp * sr, cy * cp * sr - sy * sp * cr,
+        cy * sp * cr + sy * cp * sr, sy * cp * cr - cy * sp * sr,
+    ])  # fmt: skip
+    d.qpos[3:7] = q
+    d.qvel[:] = 0.0
+    mujoco.mj_forward(plant.m, d)
+    r = plant.read()
+    np.testing.assert_allclose(quat_to_rpy(r.imu_quat_wxyz), [roll, pitch, yaw], atol=1e-9)
+    np.testing.assert_allclose(r.gyro, 0.0, atol=1e-12)
+    plant.gyro_bias = np.array([0.01, -0.02, 0.03])
+    plant.mount = P._axis_quat(0, 0.02)  # the IMU rolled 0.02 rad on the frame
+    d.qpos[3:7] = [1.0, 0.0, 0.0, 0.0]
+    mujoco.mj_forward(plant.m, d)
+    r = plant.read()
+    np.testing.assert_allclose(quat_to_rpy(r.imu_quat_wxyz), [0.02, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(r.gyro, [0.01, -0.02, 0.03], atol=1e-12)  # at rest: the bias
+    # a 6-axis fusion's heading drifts by the integrated z bias: 0.03 rad/s x 1 s
+    plant.sensors = P.SensorParams(**{**QUIET.__dict__, "enabled": True})
+    plant.mount = np.array([1.0, 0.0, 0.0, 0.0])
+    plant.heading_drift = 0.0
+    plant.heading_drift += plant.gyro_bias[2] * 1.0
+    assert quat_to_rpy(plant.read().imu_quat_wxyz)[2] == pytest.approx(0.03, abs=1e-9)
+
+
+def test_heading_drift_accumulates_over_advance(robot, flat):
+    plant = P.Plant(
+        robot, flat, P.ServoParams(), P.SensorParams(**{**QUIET.__dict__, "gyro_bias": 0.05}), seed=4
+    )
+    plant.reset()
+    bias_z = plant.gyro_bias[2]
+    assert 0.0 < abs(bias_z) <= 0.05
+    for _ in range(50):  # 1 s of ticks, standing
+        plant.send(plant.home_targets)
+        plant.advance(0.02)
+    assert plant.heading_drift == pytest.approx(bias_z * 1.0, rel=1e-9)
+
+
+def test_encoders_are_quantised_to_12_bits(robot, flat):
+    s = P.SensorParams(**{**QUIET.__dict__, "enabled": True})
+    plant = P.Plant(robot, flat, P.ServoParams(), s)
+    plant.reset()
+    counts = plant.read().motor_pos / (2 * math.pi / 4096)
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)
+    true = plant.d.qpos[plant.qadr]
+    assert np.max(np.abs(plant.read().motor_pos - true)) <= math.pi / 4096 + 1e-12
+
+
+class _SmallSensorPolicy:
+    """A freshly initialised small MLP (obs -> 32 -> actions, tanh) over the sensor-only observation:
+    what an untrained export computes, without training."""
+
+    def __init__(self):
+        from quadson_mjx import deploy
+
+        cfg = env_config(terrain="rough")
+        cfg.unlock()
+        cfg.observation, cfg.command_tracking = "sensors", True
+        self.meta = {"env_config": json.loads(to_json(cfg))}
+        c = deploy.LoopConfig.from_env_config(self.meta["env_config"], self.meta)
+        self.obs_size, self.action_size = c.obs_size, c.action_size
+        rng = np.random.default_rng(0)
+        self.w1 = rng.normal(0, 0.05, (self.obs_size, 32)).astype(np.float32)
+        self.w2 = rng.normal(0, 0.05, (32, self.action_size)).astype(np.float32)
+
+    def __call__(self, obs):
+        return np.tanh(np.tanh(obs @ self.w1) @ self.w2)
+
+
+def test_sensor_only_policy_closed_loop_takes_no_velocity(robot):
+    adapter = S.LoopAdapter(_SmallSensorPolicy(), "true")
+    assert not adapter.observes_velocity and adapter.velocity_source == "none"
+    plant = S.make_plant(robot, adapter.env_config, "flat", 0.02, seed=0, randomize=False, pushes=False)
+    row = S.run_episode(adapter, plant, ((0.0, (0.0, 0.0, 0.0)),), 2.0, seed=0)
+    assert row["steps"] == 100 and not row["fell"] and row["tracked_steps"] == 50
+    assert all(math.isfinite(row[k]) for k in ("vx_rms", "vy_rms", "yaw_rate_rms"))
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    from quadson_mjx import export
+
+    out = tmp_path_factory.mktemp("sim2sim")
+    return export.export_run(RUN, out / "old.onnx"), out
+
+
+def test_true_state_policy_closed_loop_on_stones_writes_a_readable_mcap(exported):
+    path, out = exported
+    jobs = S.suite_jobs(
+        [("old", path)], terrains=("stones",), which="sweep", seconds=3.0, seeds=(0,),
+        velocity_sources=("true", "zero"), out_dir=out, randomize=True, pushes=True,
+    )  # fmt: skip
+    job = next(j for j in jobs if j["label"] == "cmd02" and j["velocity_source"] == "true")  # vx 0.3 m/s
+    (out / "mcap").mkdir(exist_ok=True)
+    row = S.run_one(job)
+    assert row["steps"] == 150 and not row["fell"] and row["velocity_source"] == "true"
+    assert row["tracked_steps"] == 100  # every step after the first second
+    assert row["vx_rms"] < 0.3 and row["invalid_ik_steps"] == 0
+    report = mcap_check.check(job["mcap"])
+    assert report.complete
+    assert report.counts["/rollout/step"] == 150 and report.counts["/tf"] == 150
+    assert all(report.counts.get(t, 0) > 0 for t in mcap_check.ROLLOUT_TOPICS)
+    msgs = mcap_check.read_messages(job["mcap"], topics=("/rollout/step",))
+    step = msgs[-1][2]
+    targets = np.concatenate([step["motor_targets"][leg] for leg in ("FL", "FR", "RL", "RR")])
+    assert targets.shape == (12,) and np.all(np.isfinite(targets))
+    assert set(step["sensors"]) == {"imu_quat_wxyz", "gyro", "motor_pos"}
+    summary = S.summarize([row])
+    assert summary[0]["runs"] == 1 and summary[0]["vx_rms"] == pytest.approx(row["vx_rms"])
