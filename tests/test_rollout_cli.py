@@ -78,3 +78,148 @@ def test_usage_error_from_the_shell_has_no_traceback(tmp_path):
     assert res.stderr.strip().splitlines() == [res.stderr.strip()]
     assert res.stderr.startswith("error: --envs 0")
     assert "Traceback" not in res.stderr and not out.exists()
+
+
+# --- hardening: every bad input is one line, exit status 2, before anything is built or written ------
+
+
+@pytest.fixture
+def nothing_runs(cli, monkeypatch):
+    """Fails the test if an environment is built or a rollout recorded: validation must come first
+    (and no JAX function is compiled)."""
+
+    def refuse(*a, **k):
+        raise AssertionError("the rollout started although the input was bad")
+
+    monkeypatch.setattr(cli, "LocomotionEnv", refuse)
+    monkeypatch.setattr(cli.recording, "record", refuse)
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--env.no_such_key=1"], ["unknown config key 'env.no_such_key'"]),
+        (["--env.ctrl_dt=abc"], ["env.ctrl_dt", "abc"]),
+        (["--env.ctrl_dt=0.021"], ["env.ctrl_dt", "multiple"]),
+        (["--env.terrain=moon"], ["env.terrain", "moon"]),
+        (["--env.command_zero_prob=nan"], ["env.command_zero_prob", "finite"]),
+        (["--env.randomize"], ["randomize", "key.sub=value"]),
+        (["--gait", "foo"], ["--gait foo", "unknown gait 'foo'"]),
+        (["--robot", "caramel", "--gait", "walk"], ["--gait walk", "caramel"]),
+        (["--suite", "--env.no_such_key=1"], ["env.no_such_key"]),
+    ],
+)
+def test_regression_bad_env_override_or_gait_is_one_line(cli, capsys, tmp_path, nothing_runs, args, words):
+    # Regression: any bad --env.* override and --gait foo gave tracebacks (after building the env).
+    argv = [
+        *args,
+        "--out-dir" if "--suite" in args else "--out",
+        str(tmp_path / ("s" if "--suite" in args else "o.mcap")),
+    ]
+    err = _usage_error(cli, capsys, argv)
+    assert all(w in err for w in words), err
+    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--vx", "nan"],
+        ["--vx", "inf"],
+        ["--vy", "nan"],
+        ["--yaw-rate=-inf"],
+        ["--vx", "0.2", "--yaw-rate", "nan"],
+    ],
+)
+def test_regression_non_finite_command_is_refused(cli, capsys, tmp_path, nothing_runs, args):
+    # Regression: --vx nan was accepted (a rollout of NaN commands).
+    err = _usage_error(cli, capsys, [*args, "--out", str(tmp_path / "o.mcap")])
+    flag = [a.split("=")[0] for a in args if a.startswith("--")][-1]
+    assert "must be a finite number" in err and flag in err, err
+
+
+def test_regression_trial_length_is_bounded(cli, capsys, tmp_path, nothing_runs):
+    # Regression: --seconds 1e12 ran (about 77 MB of MCAP a minute, for ever) with no progress shown.
+    # The bound: MAX_SECONDS, an hour.
+    assert cli.MAX_SECONDS == 3600.0
+    for seconds in ("1e12", "3600.5", "inf"):
+        err = _usage_error(cli, capsys, ["--seconds", seconds, "--out", str(tmp_path / "o.mcap")])
+        assert "--seconds" in err and "<= 3600" in err, err
+
+
+def test_regression_unwritable_outputs_refused_before_the_rollout(
+    cli, capsys, tmp_path, nothing_runs, monkeypatch
+):
+    # Regression: a read-only --video path failed only after the whole rollout had run. Each output
+    # is checked first: a missing folder, a folder as the file, a path below a regular file, and a
+    # read-only folder (as root every folder is writable, so os.access is monkeypatched to answer as
+    # for a read-only one: what errors.check_writable asks).
+    import os
+
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    ok = str(tmp_path / "ok.mcap")
+    cases = [
+        (["--out", ok, "--video", str(tmp_path / "no" / "v.mp4")], "does not exist"),
+        (["--out", str(tmp_path / "no" / "o.mcap")], "does not exist"),
+        (["--out", str(tmp_path)], "is a folder"),
+        (["--out", ok, "--video", str(a_file / "v.gif")], "is a file, not a folder"),
+        (["--suite", "--out-dir", str(a_file / "suite")], "cannot create it"),
+    ]
+    for argv, words in cases:
+        assert words in _usage_error(cli, capsys, argv), argv
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(ro) else real(p, mode))
+    for argv in (["--out", ok, "--video", str(ro / "v.mp4")], ["--out", str(ro / "o.mcap")]):
+        assert "not writable" in _usage_error(cli, capsys, argv), argv
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "ro"] and list(ro.iterdir()) == []
+
+
+def test_regression_checkpoint_without_run_and_overrides_with_run(cli, capsys, tmp_path, nothing_runs):
+    err = _usage_error(cli, capsys, ["--checkpoint", str(tmp_path / "c.msgpack")])
+    assert "needs --run" in err
+    run = Path(__file__).parent / "data" / "legacy_run"
+    err = _usage_error(
+        cli, capsys, ["--run", str(run), "--env.terrain=rough", "--out", str(tmp_path / "o.mcap")]
+    )
+    assert "not allowed with --run" in err
+
+
+def _fake_record(calls, fail=None):
+    def record(path, env, controller, rng, n_envs, n_steps, on_segment=None, **kw):
+        path = Path(path)
+        calls["path"] = path
+        calls["final_exists_during"] = path.with_name(path.name[: -len(".partial")]).exists()
+        path.write_bytes(b"half")
+        if fail is not None:
+            raise fail
+        return {"steps": n_steps, "falls": 0, "off_field": 0, "nan_resets": 0}
+
+    return record
+
+
+def test_regression_mcap_output_is_written_under_a_temporary_name(cli, capsys, tmp_path, monkeypatch):
+    # Nothing half-written: the rollout writes OUT.partial and renames it to OUT when it finished;
+    # a failed rollout leaves neither, an interrupted one leaves OUT.partial (readable with
+    # mcap_check --recover) and says so. The environment is built (no compile) but not stepped.
+    out = tmp_path / "o.mcap"
+    calls = {}
+    monkeypatch.setattr(cli.recording, "record", _fake_record(calls))
+    assert cli.main(["--seconds", "0.04", "--out", str(out)]) == 0
+    assert calls["path"] == tmp_path / "o.mcap.partial" and not calls["final_exists_during"]
+    assert out.read_bytes() == b"half" and sorted(p.name for p in tmp_path.iterdir()) == ["o.mcap"]
+
+    out2 = tmp_path / "o2.mcap"
+    monkeypatch.setattr(cli.recording, "record", _fake_record(calls, RuntimeError("boom")))
+    with pytest.raises(RuntimeError):
+        cli.main(["--seconds", "0.04", "--out", str(out2)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.mcap"]
+
+    monkeypatch.setattr(cli.recording, "record", _fake_record(calls, KeyboardInterrupt()))
+    capsys.readouterr()
+    with pytest.raises(KeyboardInterrupt):
+        cli.main(["--seconds", "0.04", "--out", str(out2)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.mcap", "o2.mcap.partial"]
+    assert "--recover" in capsys.readouterr().err
