@@ -131,3 +131,46 @@ def test_rollout_cli_video_renders_the_first_environment(monkeypatch, tmp_path, 
     with video.Renderer(model, W, H) as r:  # the CLI renders with shadows
         want = r.render(env0[2])
     assert np.abs(decoded[2].astype(int) - want).mean() < 8
+
+
+def test_regression_video_bad_paths_refused_before_ffmpeg_starts(tmp_path, monkeypatch):
+    # Bad video paths are refused when the writer is made, before ffmpeg or a GL context starts
+    # (the rollout CLI checks the same paths before the rollout runs): a suffix other than .mp4 or
+    # .gif, a folder, a missing folder, a path below a regular file, an existing file.
+    from quadson_mjx.errors import UsageError
+
+    monkeypatch.setattr(imageio_ffmpeg, "write_frames", lambda *a, **k: pytest.fail("ffmpeg started"))
+    a_file = tmp_path / "file.mp4"
+    a_file.write_bytes(b"keep")
+    cases = [
+        (tmp_path / "clip.avi", ValueError, ".mp4 or .gif"),
+        (tmp_path / "dir.mp4", UsageError, "is a folder"),
+        (tmp_path / "no" / "clip.mp4", UsageError, "does not exist"),
+        (a_file / "clip.gif", UsageError, "is a file, not a folder"),
+        (a_file, FileExistsError, "overwrite"),
+    ]
+    (tmp_path / "dir.mp4").mkdir()
+    for path, exc, words in cases:
+        with pytest.raises(exc, match=words.replace(".", r"\.")):
+            video.VideoWriter(path, W, H, fps=50.0)
+    assert a_file.read_bytes() == b"keep"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.mp4", "file.mp4"]
+
+
+def test_regression_video_is_renamed_into_place_only_when_closed(tmp_path):
+    # Nothing half-written: while frames are written the target does not exist (a temporary
+    # ".clip.partial.mp4" beside it does); close() renames it, abort() removes it and leaves an
+    # existing target as it was.
+    frame = np.zeros((H, W, 3), np.uint8)
+    path = tmp_path / "clip.mp4"
+    w = video.VideoWriter(path, W, H, fps=50.0)
+    w.write(frame)
+    # ffmpeg may not have opened its output yet: the temporary file or nothing
+    assert not path.exists() and {p.name for p in tmp_path.iterdir()} <= {".clip.partial.mp4"}
+    w.close()
+    assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
+    before = path.read_bytes()
+    w = video.VideoWriter(path, W, H, fps=50.0, overwrite=True)
+    w.write(frame + 255)
+    w.abort()
+    assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"] and path.read_bytes() == before
