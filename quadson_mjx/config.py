@@ -210,7 +210,7 @@ class Rule:
         if self.kind in ("bool", "name"):
             return "true/false" if self.kind == "bool" else "a known name"
         left = "(" if self.lo_open else "["
-        span = f"{left}{self.lo:g}, {self.hi:g}]" + (f" {self.unit}" if self.unit else "")
+        span = f"{left}{_num(self.lo)}, {_num(self.hi)}]" + (f" {self.unit}" if self.unit else "")
         return {
             "pair": f"a (low, high) range with low <= high, both in {span}",
             "vector": f"values in {span}",
@@ -257,3 +257,8 @@ def rule_for(rules: dict[str, Rule], key: str) -> Rule | None:
         return rules[key]
     head = key.rsplit(".", 1)[0] if "." in key else None
     return rules.get(f"{head}.*") if head else None
+
+
+def _num(x: float) -> str:
+    """A bound as written: whole numbers in full (2147483647, not 2.14748e+09), others as %g."""
+    return str(int(x)) if math.isfinite(x) and float(x).is_integer() and abs(x) < 1e13 else f"{x:g}"

@@ -14,6 +14,11 @@ env preset, a terrain and a gait recipe; the flags --robot, --env-preset seed|co
 --terrain and --gait G (seed 000's gait G with its recipe, env_config.GAIT_RECIPES: the gait's speed
 as target, the contact-pattern reward, domain randomization) spell the same configs. Any config key
 can be overridden with --env.KEY=VALUE or --ppo.KEY=VALUE; an unknown key is an error naming it.
+
+A bad input (an unknown flag or key, a value out of range, a run directory that is in use, not
+empty or not writable, a damaged run to resume, too many environments for the memory) and a run
+that diverges (a NaN or infinite loss or parameter) end with one line on stderr and exit status 2;
+Ctrl-C or SIGTERM stops at the next safe point with status 130 (twice: at once, also 130).
 """
 
 from __future__ import annotations
@@ -30,16 +35,21 @@ import jax
 from quadson_mjx import tasks, training
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env_config import GAIT_RECIPES, check_env_config
+from quadson_mjx.errors import UsageError, one_line_errors
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
+from quadson_mjx.training.guards import check_backend
 
 # the flags a task stands for, with their defaults
 TASK_FLAG_DEFAULTS = {"robot": "quadson", "env_preset": "seed", "terrain": "flat", "gait": None}
 
 
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line (argparse prints its usage first), exit status 2
+        raise UsageError(f"{message} (see --help)")
+
+
 def parse(argv):
-    p = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V --ppo.KEY=V"
-    )
+    p = _Parser(description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V --ppo.KEY=V")
     p.add_argument(
         "--preset", default=None, help="ppo preset: gpu, cpu or test (default: gpu if a GPU is present)"
     )
@@ -112,18 +122,23 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+@one_line_errors
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # before training started (imports, configs): nothing was written
+        print("\ninterrupted before training started: nothing was saved", file=sys.stderr)
+        return 130
+
+
+def _main(argv) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
     if args.list_tasks:
         print(list_tasks())
         return 0
     if args.task is not None and task_flags_given(args):
         given = ", ".join(task_flags_given(args))
-        print(
-            f"--task {args.task} names the robot, env preset, terrain and gait: remove {given}",
-            file=sys.stderr,
-        )
-        return 2
+        raise UsageError(f"--task {args.task} names the robot, env preset, terrain and gait: remove {given}")
     signal.signal(signal.SIGTERM, _terminate)
     if not args.no_compile_cache:
         training.enable_compilation_cache(args.compile_cache)
@@ -147,15 +162,19 @@ def main(argv=None) -> int:
         ]
         if overrides or options:
             given = " ".join([*options, *overrides])
-            print(f"--resume takes the run's saved configs; remove {given}", file=sys.stderr)
-            return 2
+            raise UsageError(f"--resume takes the run's saved configs; remove {given}")
         run_dir = Path(args.resume)
         try:
             # the checks train() makes, answered as a usage error
-            training.resume_point(run_dir, training.load_run_config(run_dir)[1])
+            env_cfg, ppo_cfg = training.load_run_config(run_dir)
+            check_backend(env_cfg)
+            holder = training.lock_holder(run_dir)
+            if holder is not None:
+                raise UsageError(f"run directory {run_dir} is in use by process {holder or '(starting)'}")
+            training.resume_point(run_dir, ppo_cfg)
+            training.check_writable_dir(run_dir)
         except (ValueError, OSError) as e:
-            print(f"error: cannot resume {run_dir}: {e}", file=sys.stderr)
-            return 2
+            raise UsageError(f"cannot resume {run_dir}: {e}") from None
         env_cfg = ppo_cfg = None
     else:
         on_gpu = jax.default_backend() == "gpu"
@@ -176,15 +195,18 @@ def main(argv=None) -> int:
             ppo_cfg = apply_overrides(training.ppo_config(preset), ppo_over, prefix="ppo.")
             check_env_config(env_cfg)
             training.check_ppo_config(ppo_cfg)
+            check_backend(env_cfg)
             run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
             training.check_new_run_dir(run_dir)
         except (ValueError, FileExistsError) as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
+            raise UsageError(str(e)) from None
     print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
     t0 = time.monotonic()
     try:
         _, _, metrics = training.train(env_cfg, ppo_cfg, run_dir, resume=bool(args.resume))
+    except (ValueError, FileExistsError, FileNotFoundError) as e:
+        # a damaged checkpoint or state file met on resume, a directory taken in the meantime
+        raise UsageError(str(e)) from None
     except KeyboardInterrupt:
         print(f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable.")
         if (run_dir / "config.json").exists():

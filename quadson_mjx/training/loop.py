@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -33,7 +33,9 @@ from pathlib import Path
 import jax
 
 from quadson_mjx.config import to_json
+from quadson_mjx.errors import write_text_atomic
 from quadson_mjx.provenance import versions
+from quadson_mjx.training import guards
 from quadson_mjx.training.checkpoints import (
     _load_npz,
     _save_npz,
@@ -45,7 +47,15 @@ from quadson_mjx.training.checkpoints import (
 from quadson_mjx.training.monitor import Progress, XlaCompilations, _Stop
 from quadson_mjx.training.networks import make_networks
 from quadson_mjx.training.presets import check_ppo_config, epoch_steps, local_devices_to_use
-from quadson_mjx.training.runs import _reopen_log, check_new_run_dir, load_run_config, resume_point
+from quadson_mjx.training.runs import (
+    LOCK_NAME,
+    _reopen_log,
+    check_new_run_dir,
+    check_writable_dir,
+    load_run_config,
+    resume_point,
+    run_dir_lock,
+)
 
 
 def train(
@@ -75,13 +85,40 @@ def train(
     checkpoint. A signal that arrives during an XLA compilation (tens of seconds on the first epoch
     and evaluation) or a training epoch takes effect when it ends; a second signal stops at once.
     Stopping raises StopRequested (a KeyboardInterrupt) after closing the log and saving the state.
+    A second signal during a compilation ends the process at once (os._exit(130), see
+    monitor._Stop) after closing the log; the run stays resumable from its last checkpoint.
+
+    One process at a time trains in a run directory: it holds run_dir/.lock (runs.run_dir_lock);
+    another train or resume on it raises RunDirInUse naming the holder's pid. A loss, gradient or
+    parameter that becomes non-finite stops the run at that evaluation with TrainingDiverged,
+    before its checkpoint is written (checkpoints/latest keeps naming the last finite one); too many
+    environments for the memory raise OutOfMemory. Both are UsageErrors: one line, exit status 2.
     """
     stop = _Stop()
-    with stop.installed():
-        return _train(env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop)
+    with stop.installed(), contextlib.ExitStack() as held:
+        return _train(env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop, held)
 
 
-def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: _Stop):
+def _claim_new_run_dir(run_dir: Path, held: contextlib.ExitStack) -> bool:
+    """Creates and locks a new run's directory. -> whether this call created it."""
+    check_new_run_dir(run_dir)
+    created = not run_dir.exists()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    held.enter_context(run_dir_lock(run_dir))
+    if any(p.name != LOCK_NAME for p in run_dir.iterdir()):  # another run started in between
+        check_new_run_dir(run_dir)
+    return created
+
+
+def _remove_if_unused(run_dir: Path) -> None:
+    """Removes a run directory this process created when nothing but its lock file is in it."""
+    with contextlib.suppress(OSError):
+        if {p.name for p in run_dir.iterdir()} <= {LOCK_NAME}:
+            (run_dir / LOCK_NAME).unlink(missing_ok=True)
+            run_dir.rmdir()
+
+
+def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: _Stop, held):
     from brax.training.agents.ppo import train as ppo
 
     from quadson_mjx import compat
@@ -93,9 +130,25 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
 
     compat.patch_brax()
     start_step, ckpt = 0, None
+    live = {"log": None, "step": 0}  # what the second signal's emergency exit closes
+    log_lock = threading.Lock()
+
+    def emergency(reason: str) -> None:  # on the watcher thread, the main thread compiling
+        if live["log"] is not None and log_lock.acquire(timeout=2.0):
+            event = {"event": "interrupted", "step": live["step"], "reason": reason}
+            live["log"].log("/train/log", event, time.time_ns())
+            live["log"].close()
+        print(f"{reason}: stopped at once; continue the run with --resume {run_dir}", file=sys.stderr)
+
+    stop.emergency = emergency
     if resume:
         env_cfg, ppo_cfg = load_run_config(run_dir)
-        start_step, ckpt = resume_point(run_dir, ppo_cfg)
+        check_writable_dir(run_dir)
+        held.enter_context(run_dir_lock(run_dir))
+        notes: list[str] = []
+        start_step, ckpt = resume_point(run_dir, ppo_cfg, notes)
+        for note in notes:
+            print(f"resume: {note}", file=stream)
         if ckpt is None:
             print(
                 f"resume: {run_dir} has no checkpoint after step 0: starting from step 0 with its configs",
@@ -103,12 +156,19 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             )
     check_env_config(env_cfg)
     check_ppo_config(ppo_cfg)
+    guards.check_backend(env_cfg)
+    created = False
     if not resume:
-        check_new_run_dir(run_dir)
-        run_dir.mkdir(parents=True, exist_ok=True)
-
-    env = LocomotionEnv(env_cfg)
-    eval_env = LocomotionEnv(env_cfg)
+        created = _claim_new_run_dir(run_dir, held)
+    try:
+        env = LocomotionEnv(env_cfg)
+        eval_env = LocomotionEnv(env_cfg)
+        guards.check_memory(env, ppo_cfg.num_envs, local_devices_to_use(ppo_cfg))
+    except BaseException:
+        if created:
+            _remove_if_unused(run_dir)
+        raise
+    live["step"] = start_step
     per_epoch, epochs = epoch_steps(ppo_cfg)
     first_epoch = start_step // per_epoch
     state = compat.BraxTrainingState(first_epoch=first_epoch)
@@ -120,22 +180,21 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             state.restore_training_state = _load_npz(training_state_path(run_dir, start_step), start_step)
             restored = "the whole training state (Adam's moments, step count, keys)"
             if env_state_path(run_dir, start_step).exists():
-                state.restore_env_state = _load_npz(env_state_path(run_dir, start_step), start_step)
                 restored += " and the environments"
+                state.restore_env_state = _load_npz(env_state_path(run_dir, start_step), start_step, "env")
             else:
                 restored += "; the environments restart from the run's initial states"
         print(f"resume from step {start_step:,}: restoring {restored}", file=stream)
     devices = local_devices_to_use(ppo_cfg)
     state.epoch_keys = lambda epoch: compat.brax_epoch_keys(ppo_cfg.seed, epoch, devices, jax.process_index())
     vers = versions()
-    config_tmp = run_dir / "config.json.tmp"
-    config_tmp.write_text(
+    write_text_atomic(
+        run_dir / "config.json",
         json.dumps(
             {"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": vers},
             indent=2,
-        )
+        ),
     )
-    os.replace(config_tmp, run_dir / "config.json")
 
     log_path = run_dir / "train.mcap"
     old, kept, contents = [], None, None
@@ -163,6 +222,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         if contents is not None and contents.damaged:
             event["damaged_records"] = "; ".join(contents.damaged)[:2000]
     log.log("/train/log", event, time.time_ns())
+    live["log"] = log  # from here on, a second signal closes it (see emergency)
     logged_steps = {m["progress"]["step"] for t, _, m in old if t == "/train/metrics" and "progress" in m}
 
     progress = Progress(total_steps=ppo_cfg.num_timesteps, start_step=start_step, stream=stream)
@@ -195,18 +255,34 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
                 if f"eval/episode_{name}" in record:
                     record[f"eval/mean_{name}"] = record[f"eval/episode_{name}"] / length
         if step not in logged_steps:  # a resumed run re-evaluates its checkpoint: logged already
-            log.log("/train/metrics", _nest(record), time.time_ns())
+            with log_lock:
+                log.log("/train/metrics", _nest(record), time.time_ns())
             logged_steps.add(step)
+        bad = guards.non_finite_metrics(metrics)
+        if bad:
+            raise guards.diverged(_where(step), bad, last_good())
         last_metrics.clear()
         last_metrics.update(record)
         if on_eval is not None:
             on_eval(step, record)
         stop.check()
 
+    def _where(step: int) -> str:
+        evaluation = first_epoch + state.epochs_done
+        return f"evaluation {evaluation} of {epochs} (after training epoch {evaluation}, step {step:,})"
+
+    def last_good() -> str:
+        return f"step {saved['step']:,}" if saved["step"] is not None else "none yet"
+
     def policy_params_fn(step, make_policy, params):
         step = global_step(step)
         if state.latest is not None:  # after an epoch: the whole training state too
-            _save_npz(training_state_path(run_dir, step), state.training_state_leaves(), step)
+            leaves = state.training_state_leaves()  # params, normaliser, Adam's moments (gradients)
+            bad = guards.non_finite(leaves) or guards.non_finite(params)
+            if bad:
+                names = guards.non_finite(state.latest[0]) or bad
+                raise guards.diverged(_where(step), [f"training state {n}" for n in names], last_good())
+            _save_npz(training_state_path(run_dir, step), leaves, step)
         elif step > start_step:
             raise RuntimeError(
                 "compat.brax_training_state did not find brax's training epoch (brax changed?)"
@@ -214,6 +290,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         if not (state.epochs_done == 0 and ckpt is not None):  # a resumed checkpoint exists already
             save_checkpoint(run_dir, step, params)
         saved.update(step=step, epochs=state.epochs_done)
+        live["step"] = step
         stop.check()
 
     remaining_epochs = epochs - first_epoch
@@ -269,19 +346,27 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             _save_npz(env_state_path(run_dir, saved["step"]), state.env_state_leaves(), saved["step"])
             event["env_state"] = env_state_path(run_dir, saved["step"]).name
         event["reason"] = str(e) or type(e).__name__
-        log.log("/train/log", event, time.time_ns())
-        log.close()
+        with log_lock:
+            log.log("/train/log", event, time.time_ns())
+            log.close()
+            live["log"] = None
         raise
     except BaseException as e:  # any other failure: the log still gets its summary and says why
         event = f"failed: {type(e).__name__}: {e}"[:500]
-        log.log("/train/log", {"event": event, "step": start_step}, time.time_ns())
-        log.close()
+        with log_lock:
+            log.log("/train/log", {"event": event, "step": saved["step"] or start_step}, time.time_ns())
+            log.close()
+            live["log"] = None
+        if guards.is_out_of_memory(e):
+            raise guards.out_of_memory(ppo_cfg, e) from None
         raise
     print(compilations.summary(), file=stream, flush=True)
     # brax hands the final parameters to policy_params_fn at its last evaluation: already saved.
     final_step = progress.last[1] if progress.last else ppo_cfg.num_timesteps
-    log.log("/train/log", {"event": "finished", "step": final_step}, time.time_ns())
-    log.close()
+    with log_lock:
+        log.log("/train/log", {"event": "finished", "step": final_step}, time.time_ns())
+        log.close()
+        live["log"] = None
     return make_policy, params, last_metrics
 
 

@@ -20,8 +20,16 @@ def enable_compilation_cache(path: str | Path) -> Path:
     second run of the same configuration on the same machine loads its programs instead of
     compiling them. Every program is kept, however small: the main job compiles about 90 programs
     of under 0.5 s each, about 6 s together on one H100."""
+    from quadson_mjx.errors import UsageError
+
     path = Path(path).expanduser()
-    path.mkdir(parents=True, exist_ok=True)
+    hint = "choose another with --compile-cache DIR, or --no-compile-cache"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"compile cache {path}: cannot create it ({e.strerror}); {hint}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise UsageError(f"compile cache {path} is not writable (read-only?); {hint}")
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return path
@@ -115,17 +123,31 @@ class StopRequested(KeyboardInterrupt):
 
 @dataclasses.dataclass
 class _Stop:
-    """Signals deferred to a flag that the training loop checks at safe points."""
+    """Signals deferred to a flag that the training loop checks at safe points.
+
+    Python runs a signal handler only between bytecodes of the main thread, so while the main
+    thread is inside an XLA compilation (tens of seconds) a handler would wait for it, and raising
+    from one then lands inside jax's machinery (the second Ctrl-C used to end in a segfault). So
+    the signals are read from `signal.set_wakeup_fd` by a watcher thread, which runs at once: the
+    first signal sets the flag; a second one calls `emergency` (the loop closes its log there),
+    flushes stdout and stderr and ends the process with os._exit(130), without unwinding the
+    compiling main thread or running interpreter shutdown next to XLA's threads. Checkpoints and
+    config.json are written atomically, so the run stays resumable.
+    """
 
     signum: int | None = None
+    emergency: object = None  # () -> None, called on the second signal before the process exits
+    signals: int = 0
+    _watcher: threading.Thread | None = None
 
     def check(self) -> None:
         if self.signum is not None:
             raise StopRequested(f"stopped by {signal.Signals(self.signum).name}")
 
-    def handler(self, signum, frame):
-        if self.signum is not None:  # a second signal: stop now, wherever Python is
-            raise KeyboardInterrupt(f"second {signal.Signals(signum).name}")
+    def _on_signal(self, signum: int) -> None:
+        self.signals += 1
+        if self.signals >= 2:
+            self._exit_now(signum)
         self.signum = signum
         message = (
             f"\n{signal.Signals(signum).name}: stopping at the next safe point (after the compilation or "
@@ -134,14 +156,57 @@ class _Stop:
         with contextlib.suppress(OSError, ValueError):  # an unbuffered write: safe inside a handler
             os.write(sys.stderr.fileno(), message.encode())
 
+    def _exit_now(self, signum: int) -> None:
+        name = signal.Signals(signum).name
+        with contextlib.suppress(Exception):
+            if callable(self.emergency):
+                self.emergency(f"second {name}")
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        with contextlib.suppress(OSError, ValueError):
+            os.write(sys.stderr.fileno(), f"\nsecond {name}: stopped at once\n".encode())
+        os._exit(130)
+
+    def handler(self, signum, frame):
+        if self._watcher is None:  # no watcher thread (not the main thread's loop): count here
+            self._on_signal(signum)
+
+    def _watch(self, fd: int) -> None:
+        while True:
+            try:
+                data = os.read(fd, 64)
+            except OSError:
+                return
+            for signum in data:
+                if signum == 0:  # uninstalled
+                    return
+                if signum in (signal.SIGINT, signal.SIGTERM):
+                    self._on_signal(signum)
+
     @contextlib.contextmanager
     def installed(self):
         if threading.current_thread() is not threading.main_thread():
             yield  # signal handlers can only be set from the main thread
             return
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        # watcher first, then the wakeup fd, then the handlers: no signal is counted twice or lost
+        self._watcher = threading.Thread(
+            target=self._watch, args=(read_fd,), name="signal-watcher", daemon=True
+        )
+        self._watcher.start()
+        old_wakeup = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
         previous = {s: signal.signal(s, self.handler) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
             yield
         finally:
             for s, h in previous.items():
                 signal.signal(s, h)
+            signal.set_wakeup_fd(old_wakeup)
+            with contextlib.suppress(OSError):
+                os.write(write_fd, b"\0")
+            self._watcher.join(timeout=5.0)
+            self._watcher = None
+            os.close(write_fd)
+            os.close(read_fd)

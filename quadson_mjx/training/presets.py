@@ -8,6 +8,8 @@ import math
 import jax
 import ml_collections
 
+from quadson_mjx.config import LAYER_SIZE_KEYS, Rule
+
 
 def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
     """PPO hyperparameters. Presets: "gpu" (the real job on one GPU), "cpu" (a small run that
@@ -90,7 +92,7 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
         },
     }
     if preset not in presets:
-        raise ValueError(f"unknown ppo preset {preset!r}; choose from {sorted(presets)}")
+        raise ValueError(f"unknown ppo preset {preset!r}; choose from {list(PRESETS)}")
     cfg = ml_collections.ConfigDict({**base, **presets[preset], "preset": preset})
     cfg.lock()
     return cfg
@@ -102,44 +104,62 @@ def local_devices_to_use(cfg) -> int:
     return min(n, cfg.max_devices) if cfg.max_devices else n
 
 
-def _require(cfg, key: str, ok, what: str, kind=(int, float)) -> None:
-    v = cfg[key]
-    if isinstance(v, bool) or not isinstance(v, kind) or not math.isfinite(v) or not ok(v):
-        raise ValueError(f"ppo.{key} must be {what}, got {v!r}")
+PRESETS = ("gpu", "cpu", "test")
+
+# Every PPO key's allowed values (config.Rule). Upper bounds are far beyond any preset, there to
+# catch a typo's order of magnitude: a learning rate above 1 diverges at once, 2^24 environments
+# do not fit one GPU (the estimate in loop.py refuses what does not fit this machine's memory).
+# A new key without an entry fails tests/test_training_hardening.py.
+PPO_RULES: dict[str, Rule] = {
+    "num_timesteps": Rule("int", 1, 10**12, "steps"),
+    "num_evals": Rule("int", 1, 10_000),
+    "num_envs": Rule("int", 1, 2**24),
+    "num_eval_envs": Rule("int", 1, 2**20),
+    "episode_length": Rule("int", 0, 10**6, "steps (0: the env's episode length)"),
+    "unroll_length": Rule("int", 1, 10_000, "steps"),
+    "batch_size": Rule("int", 1, 2**24),
+    "num_minibatches": Rule("int", 1, 4096),
+    "num_updates_per_batch": Rule("int", 1, 1000),
+    "learning_rate": Rule("number", 0.0, 1.0, lo_open=True),
+    "entropy_cost": Rule("number", 0.0, 10.0),
+    "discounting": Rule("number", 0.0, 1.0, lo_open=True),
+    "gae_lambda": Rule("number", 0.0, 1.0),
+    "clipping_epsilon": Rule("number", 0.0, 10.0, lo_open=True),
+    "max_grad_norm": Rule("number", 0.0, 1e6, "(the gradient clipping norm)", lo_open=True),
+    "reward_scaling": Rule("number", 0.0, 1e6, lo_open=True),
+    "normalize_observations": Rule("bool"),
+    "policy_hidden": Rule("vector", 1, 65536, "units per layer"),
+    "value_hidden": Rule("vector", 1, 65536, "units per layer"),
+    "policy_distribution": Rule("name"),
+    "init_noise_std": Rule("number", 0.0, 10.0, lo_open=True),
+    "max_devices": Rule("int", 0, 4096, "(0: all)"),
+    "multi_device": Rule("name"),
+    "deterministic_eval": Rule("bool"),
+    "seed": Rule("int", 0, 2**31 - 1),
+    "preset": Rule("name"),
+}
 
 
 def check_ppo_config(cfg) -> None:
     """Raises ValueError naming the key for a value brax would reject late or misread silently:
-    non-finite or out-of-range numbers, sizes that do not split over the devices, unknown names."""
+    a key without a rule in PPO_RULES, numbers out of range or not finite in float32, sizes that do
+    not split over the devices, unknown names."""
+    for key, value in cfg.items():
+        rule = PPO_RULES.get(key)
+        if rule is None:
+            raise ValueError(f"ppo.{key} has no range in presets.PPO_RULES (a new key needs one)")
+        rule.check(f"ppo.{key}", value)
+    for key in LAYER_SIZE_KEYS:
+        if not 1 <= len(cfg[key]) <= 64 or not all(isinstance(v, int) for v in cfg[key]):
+            raise ValueError(f"ppo.{key} must be 1 to 64 layer sizes (integers), got {cfg[key]!r}")
+    if cfg.preset not in PRESETS:
+        raise ValueError(f"ppo.preset is {cfg.preset!r}; choose from {list(PRESETS)}")
     if cfg.policy_distribution not in POLICY_DISTRIBUTIONS:
         raise ValueError(
             f"ppo.policy_distribution is {cfg.policy_distribution!r}; choose from {list(POLICY_DISTRIBUTIONS)}"
         )
     if cfg.multi_device not in ("sharded_jit", "pmap"):
         raise ValueError(f"ppo.multi_device is {cfg.multi_device!r}; choose 'sharded_jit' or 'pmap'")
-    for key in (
-        "num_timesteps",
-        "num_envs",
-        "num_eval_envs",
-        "unroll_length",
-        "batch_size",
-        "num_minibatches",
-        "num_updates_per_batch",
-        "num_evals",
-    ):
-        _require(cfg, key, lambda v: v >= 1, "an integer >= 1", int)
-    positive = lambda v: v > 0  # noqa: E731
-    _require(cfg, "episode_length", lambda v: v >= 0, "an integer >= 0 (0: the env's episode length)", int)
-    _require(cfg, "max_devices", lambda v: v >= 0, "an integer >= 0 (0: all)", int)
-    _require(cfg, "seed", lambda v: 0 <= v < 2**31, "an integer in [0, 2^31)", int)
-    _require(cfg, "learning_rate", positive, "a finite number > 0")
-    _require(cfg, "entropy_cost", lambda v: v >= 0, "a finite number >= 0")
-    _require(cfg, "discounting", lambda v: 0 < v <= 1, "in (0, 1]")
-    _require(cfg, "gae_lambda", lambda v: 0 <= v <= 1, "in [0, 1]")
-    _require(cfg, "clipping_epsilon", positive, "a finite number > 0")
-    _require(cfg, "max_grad_norm", positive, "a finite number > 0 (the gradient clipping norm)")
-    _require(cfg, "reward_scaling", positive, "a finite number > 0")
-    _require(cfg, "init_noise_std", positive, "a finite number > 0")
     devices = local_devices_to_use(cfg) * jax.process_count()
     for key in ("num_envs", "batch_size"):
         if cfg[key] % devices:

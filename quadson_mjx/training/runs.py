@@ -3,15 +3,30 @@ run may start in it, where a resume starts, the resumed run's log, and its train
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import json
 import os
 from pathlib import Path
 
 import ml_collections
 
-from quadson_mjx.training.checkpoints import latest_checkpoint, load_checkpoint
+from quadson_mjx.errors import UsageError
+from quadson_mjx.training.checkpoints import (
+    latest_checkpoint,
+    list_checkpoints,
+    load_checkpoint,
+    verify_checkpoint,
+)
 from quadson_mjx.training.networks import make_networks
-from quadson_mjx.training.presets import PPO_KEYS_ADDED, check_ppo_config, epoch_steps, ppo_config
+from quadson_mjx.training.presets import PPO_KEYS_ADDED, PRESETS, check_ppo_config, epoch_steps, ppo_config
+
+LOCK_NAME = ".lock"  # run_dir/.lock: flock'ed by the process training in the directory, holds its pid
+
+
+class RunDirInUse(UsageError):
+    """Another process (a trainer or a resume) holds the run directory's lock."""
 
 
 def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collections.ConfigDict]:
@@ -28,7 +43,7 @@ def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collec
     copy = "a copy of both configs is in the run's train.mcap (metadata env_config and ppo_config)"
     try:
         data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
         raise ValueError(f"{path} is not valid JSON ({e}): the file is damaged; {copy}") from None
     if (
         not isinstance(data, dict)
@@ -38,36 +53,133 @@ def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collec
         raise ValueError(f"{path} lacks its 'env' or 'ppo' section: the file is incomplete; {copy}")
     ppo = {**PPO_KEYS_ADDED, **data["ppo"]}
     preset = ppo.get("preset", "gpu")
-    if preset not in ("gpu", "cpu", "test"):
+    if not isinstance(preset, str) or preset not in PRESETS:
         raise ValueError(f"{path}: config key 'ppo.preset' is {preset!r}; expected gpu, cpu or test")
-    env = with_added_keys(data["env"]).to_dict()
     try:
+        env = with_added_keys(data["env"]).to_dict()
         env_cfg = conform(env, env_config(), "env.", str(path))
         ppo_cfg = conform(ppo, ppo_config(preset), "ppo.", str(path))
         check_env_config(env_cfg)
         check_ppo_config(ppo_cfg)
-    except ValueError as e:
-        raise ValueError(e if str(e).startswith(str(path)) else f"{path}: {e}") from None
+    except (ValueError, TypeError, AttributeError, KeyError) as e:  # any shape a hand edit leaves
+        text = str(e) if isinstance(e, ValueError) else f"damaged or hand-edited ({type(e).__name__}: {e})"
+        raise ValueError(text if text.startswith(str(path)) else f"{path}: {text}") from None
     return env_cfg, ppo_cfg
 
 
-def check_new_run_dir(run_dir: Path) -> None:
-    """Raises FileExistsError when `run_dir` holds anything: a new run never writes over one."""
+def check_writable_dir(run_dir: Path) -> None:
+    """Raises UsageError now, before a run starts, when `run_dir` could not be created or written:
+    a path component that is a file, or a read-only folder."""
     run_dir = Path(run_dir)
-    if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
-        raise FileExistsError(
-            f"run directory {run_dir} is not empty; continue it with --resume {run_dir}, or choose another --run-dir"
+    probe = run_dir
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise UsageError(
+            f"run directory {run_dir}: {probe} is a file, not a folder; choose another --run-dir"
+        )
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise UsageError(
+            f"run directory {run_dir}: {probe} is not writable (read-only?); choose a writable --run-dir"
         )
 
 
-def resume_point(run_dir: Path, ppo_cfg) -> tuple[int, Path | None]:
-    """-> (start step, checkpoint or None) for --resume; ValueError if the run cannot continue. A
+def lock_holder(run_dir: Path) -> int | None:
+    """-> the pid of the process holding `run_dir`'s lock (0 if it has not written its pid yet), or
+    None when no process holds it."""
+    path = Path(run_dir) / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as e:
+            if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                raise
+            text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            return int(text) if text.isdigit() else 0
+        return None
+    finally:
+        os.close(fd)
+
+
+def _in_use(run_dir: Path, pid: int) -> RunDirInUse:
+    who = f"process {pid}" if pid else "another process"
+    return RunDirInUse(
+        f"run directory {run_dir} is in use by {who} (a trainer or --resume holds {Path(run_dir) / LOCK_NAME}); "
+        "wait for it to end, or choose another --run-dir"
+    )
+
+
+@contextlib.contextmanager
+def run_dir_lock(run_dir: Path):
+    """Holds an exclusive lock on `run_dir` (flock on run_dir/.lock, which holds this pid) while
+    active: one trainer or resume at a time. Raises RunDirInUse naming the holder's pid. The kernel
+    releases the lock when the process ends, however it ends; the file stays (empty) behind."""
+    path = Path(run_dir) / LOCK_NAME
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as e:
+        os.close(fd)
+        if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+            raise
+        raise _in_use(run_dir, lock_holder(run_dir) or 0) from None
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            os.ftruncate(fd, 0)
+        os.close(fd)
+
+
+def check_new_run_dir(run_dir: Path) -> None:
+    """Raises FileExistsError when `run_dir` holds anything (its lock file aside): a new run never
+    writes over one; RunDirInUse when a process holds it; UsageError when it cannot be written."""
+    run_dir = Path(run_dir)
+    pid = lock_holder(run_dir) if run_dir.is_dir() else None
+    if pid is not None:
+        raise _in_use(run_dir, pid)
+    if run_dir.exists() and (not run_dir.is_dir() or any(p.name != LOCK_NAME for p in run_dir.iterdir())):
+        raise FileExistsError(
+            f"run directory {run_dir} is not empty; continue it with --resume {run_dir}, or choose another --run-dir"
+        )
+    check_writable_dir(run_dir)
+
+
+def resume_point(run_dir: Path, ppo_cfg, notes: list[str] | None = None) -> tuple[int, Path | None]:
+    """-> (start step, checkpoint or None) for --resume; ValueError if the run cannot continue. The
+    checkpoint is the newest intact one (its checksum holds): the one `latest` names, else (no
+    `latest`, or a damaged file) the newest before it; `notes` gets a line for each passed over. A
     run stopped before its first checkpoint (or with only the step-0 one, which a fresh run
     reproduces from the seed) starts from step 0."""
+    notes = [] if notes is None else notes
     try:
         ckpt, start = latest_checkpoint(Path(run_dir))
     except FileNotFoundError:
         return 0, None
+    if not (Path(run_dir) / "checkpoints" / "latest").exists():
+        notes.append(f"{run_dir} has no checkpoints/latest: resuming from its newest checkpoint")
+    try:
+        verify_checkpoint(ckpt)
+    except ValueError as e:
+        notes.append(f"{e}; resuming from the newest intact checkpoint before it")
+        for path, step in reversed([c for c in list_checkpoints(run_dir) if c[1] < start]):
+            try:
+                verify_checkpoint(path)
+            except ValueError as damaged:
+                notes.append(str(damaged))
+                continue
+            ckpt, start = path, step
+            break
+        else:
+            return 0, None
     per_epoch, epochs = epoch_steps(ppo_cfg)
     if start % per_epoch:
         raise ValueError(

@@ -1,0 +1,98 @@
+"""What stops a training run early with one line instead of a wasted run or a traceback: a run that
+diverged (a non-finite loss, gradient or parameter at an evaluation), a batch of environments that
+cannot fit in memory (estimated before compiling; XLA's resource-exhausted error after), a physics
+backend that is not installed."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+
+import jax
+import numpy as np
+
+from quadson_mjx.errors import UsageError
+
+
+class TrainingDiverged(UsageError):
+    """A loss, gradient (Adam's moments) or parameter became NaN or infinite: the run stopped at the
+    evaluation that saw it, without writing that checkpoint."""
+
+
+class OutOfMemory(UsageError):
+    """The run's batch of environments does not fit the device's memory."""
+
+
+def non_finite(tree) -> list[str]:
+    """Key paths of the floating-point leaves of `tree` holding a NaN or an infinity."""
+    bad = []
+    for keypath, leaf in jax.tree_util.tree_leaves_with_path(tree):
+        a = np.asarray(leaf)
+        if np.issubdtype(a.dtype, np.floating) and not np.all(np.isfinite(a)):
+            bad.append(jax.tree_util.keystr(keypath))
+    return bad
+
+
+def non_finite_metrics(metrics: dict) -> list[str]:
+    """Names of the losses (training/*loss*) and the evaluation reward in brax's `metrics` that are
+    not finite."""
+    keys = [k for k in metrics if k.startswith("training/") and "loss" in k]
+    keys += [k for k in ("eval/episode_reward",) if k in metrics]
+    return [k for k in keys if not np.all(np.isfinite(np.asarray(metrics[k], dtype=np.float64)))]
+
+
+def diverged(where: str, what: list[str], last_good: str) -> TrainingDiverged:
+    return TrainingDiverged(
+        f"training diverged at {where}: non-finite {', '.join(what[:3])}{' ...' if len(what) > 3 else ''}; "
+        f"stopped without writing that checkpoint (the last finite one: {last_good}); "
+        "lower --ppo.learning_rate or raise --ppo.max_grad_norm's clipping"
+    )
+
+
+def check_backend(env_cfg) -> None:
+    """Raises UsageError when env.impl names an MJX backend that is not installed."""
+    if env_cfg.impl == "warp" and importlib.util.find_spec("warp") is None:
+        raise UsageError("env.impl='warp' needs warp-lang (pip install warp-lang); use env.impl=jax")
+
+
+def memory_bytes(devices: int) -> tuple[int, str]:
+    """-> (bytes, what) of memory the run's arrays may use: the devices' allocator limit on a GPU,
+    the machine's physical memory on the CPU backend."""
+    stats = jax.local_devices()[0].memory_stats() or {}
+    if stats.get("bytes_limit"):
+        kind = jax.local_devices()[0].device_kind
+        return int(stats["bytes_limit"]) * devices, f"{devices} x {kind}"
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"), "this machine's RAM"
+
+
+def check_memory(env, num_envs: int, devices: int) -> None:
+    """Raises OutOfMemory before anything compiles when `num_envs` environment states alone (sized
+    from the environment's reset, unbatched, with jax.eval_shape: no compilation) need more than the
+    memory available; brax holds them at least twice (the state and its update), and the unrolls,
+    networks and the randomized models come on top, so this is a lower bound: a run that passes can
+    still run out (the resource-exhausted error is then caught, see `is_out_of_memory`)."""
+    shapes = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    per_env = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes))
+    need = 2 * per_env * num_envs
+    have, what = memory_bytes(devices)
+    if need > have:
+        raise OutOfMemory(
+            f"ppo.num_envs={num_envs:,} needs at least {need / 1e9:.1f} GB for the environments' states "
+            f"({per_env / 1e3:.1f} kB each, twice) and {what} has {have / 1e9:.1f} GB; "
+            f"lower --ppo.num_envs (and --ppo.batch_size with it)"
+        )
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """True for XLA's resource-exhausted error (jax raises it as JaxRuntimeError / XlaRuntimeError)
+    and Python's MemoryError."""
+    text = str(exc)
+    return isinstance(exc, MemoryError) or "RESOURCE_EXHAUSTED" in text or "Out of memory" in text
+
+
+def out_of_memory(ppo_cfg, exc: BaseException) -> OutOfMemory:
+    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+    return OutOfMemory(
+        f"out of memory with ppo.num_envs={ppo_cfg.num_envs:,}, ppo.batch_size={ppo_cfg.batch_size:,} "
+        f"({first}); lower --ppo.num_envs and --ppo.batch_size, or --ppo.num_eval_envs"
+    )
