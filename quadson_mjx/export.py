@@ -157,7 +157,9 @@ def export_arrays(
 def check_output(out_path: str | Path, overwrite: bool = False) -> Path:
     """The output path if it can be written: ValueError for an unknown suffix, FileExistsError for
     an existing file without overwrite, errors.UsageError for a missing or read-only folder."""
-    from quadson_mjx.errors import check_writable
+    import tempfile
+
+    from quadson_mjx.errors import UsageError, check_writable
 
     out_path = Path(out_path)
     if out_path.suffix.lower() not in SUFFIXES:
@@ -167,7 +169,15 @@ def check_output(out_path: str | Path, overwrite: bool = False) -> Path:
         )
     if out_path.exists() and not overwrite:
         raise FileExistsError(f"{out_path} exists: pass --overwrite to replace it, or choose another name")
-    return check_writable(out_path, "output")
+    out_path = check_writable(out_path, "output")
+    try:  # as root os.access says yes to a read-only file system: try it
+        with tempfile.TemporaryFile(dir=out_path.parent if str(out_path.parent) else "."):
+            pass
+    except OSError as e:
+        raise UsageError(
+            f"output {out_path}: its folder is not writable ({e.strerror}); choose a writable path"
+        ) from None
+    return out_path
 
 
 def model_identity(robot, env_cfg) -> dict:

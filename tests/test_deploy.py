@@ -303,3 +303,103 @@ def test_control_step_is_well_under_a_millisecond(replay):
     print(f"control step on this CPU: {timing}")
     # measured 0.38 ms median on the 2-core CPU while other jobs loaded it (load average 7-8)
     assert timing["median_ms"] < 1.0
+
+
+# --- loading a policy file, and the deploy command's bad inputs -----------------------------------
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    from quadson_mjx import export
+
+    out = tmp_path_factory.mktemp("exported")
+    return {s: export.export_run(RUN, out / f"policy{s}") for s in (".npz", ".onnx")}
+
+
+def _one_line_2(capsys, argv, *words):
+    assert deploy.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: "), err
+    for w in words:
+        assert w in err, (w, err)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".onnx"])
+def test_regression_truncated_policy_file_is_one_line(exported, suffix, tmp_path, capsys):
+    data = exported[suffix].read_bytes()
+    bad = tmp_path / f"cut{suffix}"
+    bad.write_bytes(data[: len(data) // 2])
+    _one_line_2(capsys, [str(bad)], str(bad), "damaged or truncated")
+    with pytest.raises(ValueError, match="damaged or truncated"):
+        deploy.load_policy(bad)
+
+
+def test_regression_deploy_of_a_text_file_or_a_missing_one_is_one_line(tmp_path, capsys):
+    txt = tmp_path / "policy.txt"
+    txt.write_text("not a policy")
+    _one_line_2(capsys, [str(txt)], "*.onnx or *.npz")
+    _one_line_2(capsys, [str(tmp_path / "none.onnx")], "no such policy file")
+    _one_line_2(capsys, [str(txt), "--bench", "0"], "--bench")
+
+
+def test_deploy_command_from_the_shell_is_one_line_with_status_2(tmp_path):
+    bad = tmp_path / "p.onnx"
+    bad.write_bytes(b"\x08\x07garbage")
+    res = subprocess.run(
+        [sys.executable, "-m", "quadson_mjx.deploy", str(bad)], capture_output=True, text=True, cwd=ROOT
+    )
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "not a readable ONNX model" in res.stderr
+
+
+def _rewrite_npz(src, dst, **changes):
+    with np.load(src, allow_pickle=False) as f:
+        arrays = {k: f[k] for k in f.files}
+    meta = json.loads(str(arrays["meta_json"]))
+    for key, value in changes.items():
+        if key == "format_version":
+            arrays[key] = np.int64(value)
+        meta[key] = value
+    arrays["meta_json"] = np.str_(json.dumps(meta))
+    np.savez(dst, **arrays)
+    return dst
+
+
+def test_loader_refuses_an_unknown_format_version(exported, tmp_path):
+    bad = _rewrite_npz(exported[".npz"], tmp_path / "v99.npz", format_version=99)
+    with pytest.raises(ValueError, match="export format 99"):
+        deploy.load_policy(bad)
+    import onnx
+
+    model = onnx.load(exported[".onnx"])
+    for p in model.metadata_props:
+        if p.key == "meta_json":
+            p.value = json.dumps({**json.loads(p.value), "format_version": 4})
+    onnx.save(model, tmp_path / "v4.onnx")
+    with pytest.raises(ValueError, match="export format 4"):
+        deploy.load_policy(tmp_path / "v4.onnx")
+
+
+def test_loader_refuses_a_spec_it_cannot_build(exported, tmp_path):
+    from quadson_mjx import obs_spec
+
+    spec = obs_spec.Spec.from_json(deploy.load_policy(exported[".npz"]).meta["obs_spec"])
+    critic = obs_spec.privileged_observation(C.LEGS, spec)  # the critic's view: simulator entries
+    bad = _rewrite_npz(exported[".npz"], tmp_path / "critic.npz", obs_spec=critic.to_json())
+    with pytest.raises(ValueError, match="'true_lin_vel' comes from the simulator"):
+        deploy.load_policy(bad)
+    odd = obs_spec.Spec(spec.entries + (obs_spec.entry("lidar", ("d",), "m", "imu"),))
+    bad = _rewrite_npz(exported[".npz"], tmp_path / "odd.npz", obs_spec=odd.to_json())
+    with pytest.raises(ValueError, match="'lidar' is not one the deploy loop builds"):
+        deploy.load_policy(bad)
+
+
+def test_committed_true_state_policy_runs_with_base_lin_vel(exported):
+    for path in exported.values():
+        loop = deploy.DeployLoop(deploy.load_policy(path))
+        assert loop.needs_lin_vel and loop.config.observation == "true_state"
+        home = loop.config.robot.home_motor
+        for _ in range(30):
+            out = loop.step(
+                np.array([1.0, 0, 0, 0]), np.zeros(3), home, command=(0.2, 0, 0), base_lin_vel=np.zeros(3)
+            )
+            assert out.fault == "ok" and np.all(np.isfinite(out.motor_targets))

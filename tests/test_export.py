@@ -1,6 +1,7 @@
 """Policy export: the numpy inference of the .npz and ONNX Runtime on the .onnx equal brax's JAX policy
 to float32 precision; the command line refuses to overwrite and to guess a format (issue 13)."""
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -179,3 +180,136 @@ def test_every_committed_run_exports_and_the_deploy_loop_accepts_its_spec(run, t
     assert np.all(np.isfinite(action)) and np.all(np.abs(action) <= 1.0)
     if meta["env_config"]["robot"] == "quadson":
         assert deploy.DeployLoop(policy).config.obs_spec == spec
+
+
+# --- format 3: the robot's metadata ------------------------------------------------------------------
+
+CARAMEL_RUN = ROOT / "results" / "caramel" / "policy"
+QUADSON_RUN = ROOT / "results" / "policy_h200_seed"
+
+
+def _meta(path):
+    if str(path).endswith(".onnx"):
+        return json.loads({p.key: p.value for p in onnx.load(path).metadata_props}["meta_json"])
+    return export.load(path).meta
+
+
+def test_export_metadata_lists_what_the_robot_needs(run_dir, tmp_path):
+    from quadson_mjx.robots.quadson import constants as C
+
+    meta = _meta(export.export_run(run_dir, tmp_path / "policy.onnx"))
+    assert meta["format_version"] == export.FORMAT_VERSION == 3
+    assert meta["robot"] == "quadson" and meta["motors"] == list(C.MOTOR_JOINTS)
+    assert meta["actuators"] == list(C.ACTUATORS)
+    assert meta["obs_names"] == list(Spec.from_json(meta["obs_spec"]).names) and len(meta["obs_names"]) == OBS
+    np.testing.assert_allclose(meta["motor_limits_rad"], np.tile(C.MOTOR_RANGES, (4, 1)))
+    assert len(meta["home_motor_pos_rad"]) == 12 and meta["servo_speed_rps"] == C.MOTOR_VELOCITY_LIMIT
+    assert meta["action_scale_m"] == 0.05 and meta["ctrl_dt_s"] == 0.02
+    sensor = meta["trained_sensor_model"]
+    assert sensor["observation"] == "true_state" and sensor["noise"]["motor_pos"] == 0.01
+    assert sensor["sensor"]["latency_s"] == [0.0, 0.02] and sensor["actuation_latency_s"] == [0.0, 0.02]
+    model = meta["model"]
+    assert model["timestep_s"] == C.SIM_DT and len(model["mjcf_sha256"]) == 64
+    gains = model["actuator_gains"][C.ACTUATORS[0]]
+    assert gains["kp"] == pytest.approx(C.MOTOR_KP) and gains["kv"] == pytest.approx(C.MOTOR_KD)
+    assert meta["provenance"] == {}  # the run's config.json versions (this fixture's are empty)
+    assert "python" in meta["exported_with"]
+
+
+def test_model_identity_tells_the_models_apart():
+    from quadson_mjx.robots import get_robot
+
+    flat = export.model_identity(get_robot("quadson"), env_config())
+    again = export.model_identity(get_robot("quadson"), env_config())
+    rough = export.model_identity(get_robot("quadson"), env_config(terrain="rough"))
+    cfg = env_config()
+    cfg.unlock()
+    cfg.cone = "elliptic"  # a physics option of the training model
+    elliptic = export.model_identity(get_robot("quadson"), cfg)
+    assert flat == again
+    assert len({flat["mjcf_sha256"], rough["mjcf_sha256"], elliptic["mjcf_sha256"]}) == 3
+
+
+def test_provenance_is_the_training_runs_not_the_exporting_machines(tmp_path):
+    meta = _meta(export.export_run(CARAMEL_RUN, tmp_path / "c.npz"))
+    want = json.loads((CARAMEL_RUN / "config.json").read_text())["versions"]
+    assert meta["provenance"] == want and meta["provenance"]["git_revision"].startswith("d4a917e")
+
+
+def test_caramel_policy_exports_with_caramels_motors_and_runs_in_its_loop(tmp_path):
+    from quadson_mjx import deploy
+    from quadson_mjx.robots.caramel import constants as CC
+
+    out = export.export_run(CARAMEL_RUN, tmp_path / "caramel.onnx")
+    meta = _meta(out)
+    assert meta["robot"] == "caramel" and meta["motors"] == list(CC.JOINT_NAMES)
+    np.testing.assert_allclose(meta["motor_limits_rad"], np.tile(CC.JOINT_LIMITS, (4, 1)))
+    loop = deploy.DeployLoop(deploy.load_policy(out))
+    r = loop.config.robot
+    assert r.name == "caramel" and r.servo_speed_rps == CC.VELOCITY_LIMIT
+    kw = {"base_lin_vel": np.zeros(3)} if loop.needs_lin_vel else {}
+    for _ in range(60):
+        o = loop.step(np.array([1.0, 0, 0, 0]), np.zeros(3), r.home_motor, command=(0.05, 0, 0), **kw)
+        assert o.fault in ("ok", "leg_hold") and np.all(np.isfinite(o.motor_targets))
+    assert deploy.main([str(out), "--bench", "5"]) == 0  # the deploy command runs it
+
+
+# --- bad inputs: one line, exit status 2, nothing written ----------------------------------------------
+
+
+def _one_line_2(capsys, argv, *words):
+    assert export.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: "), err
+    for w in words:
+        assert w in err, (w, err)
+    return err
+
+
+def test_regression_export_of_another_robots_checkpoint_is_one_line(tmp_path, capsys):
+    ckpt = sorted((CARAMEL_RUN / "checkpoints").glob("step_*.msgpack"))[-1]
+    _one_line_2(capsys, [str(QUADSON_RUN), str(tmp_path / "p.onnx"), "--checkpoint", str(ckpt)], str(ckpt))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_regression_export_to_a_missing_folder_or_below_a_file_is_one_line(run_dir, tmp_path, capsys):
+    _one_line_2(capsys, [str(run_dir), str(tmp_path / "no" / "p.onnx")], "does not exist")
+    (tmp_path / "file").write_text("x")
+    _one_line_2(capsys, [str(run_dir), str(tmp_path / "file" / "p.npz")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_regression_export_to_a_read_only_folder_is_one_line(run_dir, tmp_path, capsys, monkeypatch):
+    # as root chmod does not stop writes: the folder's write permission is taken away in os.access
+    import os
+
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if mode & os.W_OK else real(p, mode))
+    _one_line_2(capsys, [str(run_dir), str(tmp_path / "p.onnx")], "not writable")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_regression_export_refuses_a_non_finite_policy(run_dir, tmp_path, capsys):
+    import flax.serialization
+
+    _, _, ppo_cfg, params = training.load_policy(run_dir)
+    params = (
+        params[0],
+        jax.tree.map(lambda p: np.where(np.arange(p.shape[-1]) == 0, np.nan, p), params[1]),
+        params[2],
+    )
+    bad = tmp_path / "step_000000002000.msgpack"  # a diverged run's checkpoint, with its checksum
+    bad.write_bytes(flax.serialization.to_bytes(jax.device_get(params)))
+    digest = hashlib.sha256(bad.read_bytes()).hexdigest()
+    (tmp_path / (bad.name + ".sha256")).write_text(f"{digest}  {bad.name}\n")
+    out = tmp_path / "p.npz"
+    err = _one_line_2(capsys, [str(run_dir), str(out), "--checkpoint", str(bad)])
+    assert "finite" in err and not out.exists()
+
+
+def test_export_is_written_atomically(run_dir, tmp_path):
+    out = tmp_path / "policy.npz"
+    out.write_bytes(b"an older export")
+    export.export_run(run_dir, out, overwrite=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["policy.npz"]  # no temporary file left
+    assert export.load(out).obs_size == OBS
