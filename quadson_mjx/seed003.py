@@ -175,6 +175,8 @@ def leg_tracking_sample(
 
 
 def _summary(samples: list[dict], keys) -> dict:
+    if not samples:  # a mean over no sample is NaN: a table of NaN
+        raise ValueError("a summary needs at least one sample (n_samples >= 1)")
     out = {"n": len(samples)}
     for k in keys:
         v = np.array([s[k] for s in samples], float)

@@ -98,3 +98,11 @@ def test_perturbed_model_spreads_kp_only():
     np.testing.assert_array_equal(p.actuator_biasprm[:, 1], -kp)  # still a position servo
     assert 0.0 < np.std(kp / C.SERVO_KP) < 0.1 and np.all(np.abs(kp / C.SERVO_KP - 1) < 0.15)
     np.testing.assert_array_equal(p.actuator_forcerange, m.actuator_forcerange)
+
+
+def test_regression_zero_samples_raise_instead_of_nan_tables():
+    # Regression: --samples-1 0 wrote tables of NaN (the mean over no sample); the library raises,
+    # the command line refuses it first (tests/test_entry_points.py).
+    for table in (E.table_1, E.table_2, E.table_3):
+        with pytest.raises(ValueError, match="at least one sample"):
+            table(0)
