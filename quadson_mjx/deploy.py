@@ -209,6 +209,16 @@ class DeployLoop:
         return self.safety.fault_ticks
 
     # --- one tick ------------------------------------------------------------------------------------
+    def observation(self, imu_quat_wxyz, gyro, motor_pos, base_lin_vel=None, command=None) -> np.ndarray:
+        """The observation step() would build now from these readings (no checks, the history
+        unchanged) -> (obs_size,) float32."""
+        c = self.config
+        quat = as_vector(imu_quat_wxyz, 4, "imu_quat_wxyz")
+        command = np.zeros(3) if command is None else as_vector(command, 3, "command")
+        lin_vel = None if base_lin_vel is None else as_vector(base_lin_vel, 3, "base_lin_vel")
+        gyro, motor_pos = as_vector(gyro, 3, "gyro"), as_vector(motor_pos, 12, "motor_pos")
+        return self.observer.observe(quat, gyro, motor_pos, command, lin_vel, self.progress, c.ctrl_dt)
+
     def targets(self, action, command) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """env._motor_targets at the current clock (before the safety layer): -> (motor targets
         (12,) [rad], valid (4,), foot targets (4, 3), the cycle time [s] this step runs at)."""
