@@ -137,5 +137,5 @@ def sensor_observation_parts(
     for lag in range(1, history.shape[0] + 1):
         pieces = jnp.split(history[lag - 1], np.cumsum(sizes)[:-1])
         parts.update({lagged(n, lag): p for n, p in zip(HISTORY_ENTRIES, pieces, strict=True)})
-    new_history = jnp.concatenate([history_block(parts)[None], history[:-1]], axis=0)
+    new_history = jnp.concatenate([history_block(parts)[None], history], axis=0)[: history.shape[0]]
     return parts, new_history
