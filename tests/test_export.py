@@ -313,3 +313,50 @@ def test_export_is_written_atomically(run_dir, tmp_path):
     export.export_run(run_dir, out, overwrite=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["policy.npz"]  # no temporary file left
     assert export.load(out).obs_size == OBS
+
+
+def test_asymmetric_critic_export_uses_the_actors_normaliser_only(tmp_path):
+    """A sensor-only actor with a privileged critic: brax keeps one normaliser per observation key;
+    the export takes "state"'s, and its numpy policy equals brax's policy on the dictionary
+    observation (the critic's half ignored by the actor)."""
+    from quadson_mjx import deploy
+    from quadson_mjx.env import LocomotionEnv
+
+    env_cfg = env_config(command_tracking=True)
+    env_cfg.unlock()
+    env_cfg.observation, env_cfg.asymmetric_critic = "sensors", True
+    env_cfg.lock()
+    env = LocomotionEnv(env_cfg)
+    sizes = env.observation_size
+    actor, critic = sizes["state"][0], sizes["privileged_state"][0]
+    ppo_cfg = training.ppo_config("test")
+    ppo_cfg.policy_hidden = (16, 8)
+    (tmp_path / "config.json").write_text(
+        json.dumps({"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": {}})
+    )
+    normalizer, policy, value = training.params_template(sizes, env.action_size, ppo_cfg)
+    keys = jax.random.split(jax.random.PRNGKey(11), 5)
+    mean = {
+        "state": jax.random.normal(keys[0], (actor,)),
+        "privileged_state": jax.random.normal(keys[1], (critic,)),
+    }
+    std = {
+        "state": 0.5 + jax.random.uniform(keys[2], (actor,)),
+        "privileged_state": np.full(critic, 9.0, np.float32),
+    }
+    normalizer = normalizer.replace(mean=mean, std=std)
+    policy = jax.tree.map(
+        lambda p, k: p + 0.3 * jax.random.normal(k, p.shape), policy, _keys(policy, keys[3])
+    )
+    training.save_checkpoint(tmp_path, 1000, (normalizer, policy, value))
+    out = export.export_run(tmp_path, tmp_path / "policy.npz")
+    numpy_policy = export.load(out)
+    assert numpy_policy.obs_size == actor and Spec.from_json(numpy_policy.meta["obs_spec"]) == env.obs_spec
+    np.testing.assert_allclose(numpy_policy.mean, np.asarray(mean["state"]), rtol=0, atol=0)
+    obs = np.asarray(jax.random.normal(keys[4], (32, actor)), np.float32)
+    jax_policy, _, _, _ = training.load_policy(tmp_path)
+    dict_obs = {"state": obs, "privileged_state": np.zeros((32, critic), np.float32)}
+    want = np.asarray(jax.jit(jax_policy)(dict_obs, jax.random.PRNGKey(0))[0])
+    np.testing.assert_allclose(numpy_policy(obs), want, rtol=1e-5, atol=1e-5)
+    loop = deploy.DeployLoop(numpy_policy)  # a sensor-only policy: no velocity input
+    assert not loop.needs_lin_vel and loop.config.observation == "sensors"
