@@ -477,9 +477,10 @@ def ppo_cli():
 
 
 def test_ppo_unknown_gait_exits_2(ppo_cli, capsys):
-    with pytest.raises(SystemExit) as e:
-        ppo_cli.parse(["--gait", "hop"])
-    assert e.value.code == 2 and "--gait" in capsys.readouterr().err
+    # One line on stderr and exit status 2 through main, before anything trains.
+    assert ppo_cli.main(["--gait", "hop"]) == 2
+    err = capsys.readouterr().err
+    assert "--gait" in err and "hop" in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_ppo_gait_trains_the_recipe(ppo_cli, monkeypatch, tmp_path):
