@@ -2,8 +2,8 @@
 (quadson_mjx.deploy, the code the robot runs) against MuJoCo C (quadson_mjx.sim2sim_plant: another
 timestep, full contacts, another servo model with latency, IMU and encoder noise, bias and drift).
 
-    rows = run_suite(["old.onnx"], terrains=("flat", "stones"), schedules=sweep_and_step(20.0),
-                     seeds=(0, 1, 2), velocity_sources=("true", "zero", "command"))
+    rows = run_suite(["old.onnx", ("new", "new.onnx")], terrains=("flat", "stones"), which="all",
+                     seconds=20.0, seeds=(0, 1, 2), velocity_sources=("true", "zero", "command"))
     print(format_table(summarize(rows)))
 
 Per run (one policy, terrain, command schedule, seed): falls (the env's termination: roll or pitch
@@ -13,7 +13,8 @@ control step after the first second (not smoothed), steps with an invalid IK leg
 run. `summarize` pools runs per condition: the RMS over all their steps, falls as a share of runs.
 A policy that observes the base velocity (true_state) gets it from `velocity_source`: "true" (the
 simulator's), "zero" (no estimator) or "command" (the command as the estimate); a sensor-only
-policy gets none.
+policy gets none. Commands beyond the policy's trained command range are clipped to it, as
+the deploy loop clips what it observes, and tracked against the clipped command.
 """
 
 from __future__ import annotations
@@ -76,6 +77,17 @@ def schedules(which: str, seconds: float) -> list[tuple[str, tuple, float]]:
     if not out:
         raise ValueError(f"unknown command set {which!r}: sweep, step or all")
     return out
+
+
+def clip_schedule(schedule, env_config: dict):
+    """The schedule with each command clipped to the policy's trained command range (as the deploy
+    loop clips what it observes): the reference the tracking errors are measured against."""
+    r = env_config.get("command_range")
+    if not r or not env_config.get("command_tracking", False):
+        return schedule
+    lo = np.array([r["vx"][0], r["vy"][0], r["yaw_rate"][0]], np.float64)
+    hi = np.array([r["vx"][1], r["vy"][1], r["yaw_rate"][1]], np.float64)
+    return tuple((t, tuple(float(x) for x in np.clip(c, lo, hi))) for t, c in schedule)
 
 
 def command_at(schedule, t: float) -> np.ndarray:
@@ -247,6 +259,7 @@ def run_one(job: dict) -> dict:
     t0 = time.perf_counter()
     adapter = LoopAdapter(job["policy"], job["velocity_source"])
     robot = get_robot(adapter.env_config.get("robot", "quadson"))
+    schedule = clip_schedule(job["schedule"], adapter.env_config)
     seed = job["seed"]
     plant_seed = 1_000_003 * seed + 7919 * job["schedule_index"] + (17 if job["terrain"] == "stones" else 0)
     plant = make_plant(
@@ -265,7 +278,7 @@ def run_one(job: dict) -> dict:
 
         recorder = Recorder(job.get("mcap"), job.get("video"), plant, adapter, job)
     try:
-        row = run_episode(adapter, plant, job["schedule"], job["duration_s"], seed, recorder)
+        row = run_episode(adapter, plant, schedule, job["duration_s"], seed, recorder)
     finally:
         if recorder is not None:
             recorder.close()
@@ -274,7 +287,7 @@ def run_one(job: dict) -> dict:
         **{k: job[k] for k in keys},
         "velocity_source": adapter.velocity_source,
         "robot": robot.name,
-        "commands": [list(c) for _, c in job["schedule"]],
+        "commands": [list(c) for _, c in schedule],
         "duration_s": job["duration_s"],
         **row,
         "wall_s": time.perf_counter() - t0,

@@ -45,7 +45,9 @@ class Recorder:
             from quadson_mjx.video import Renderer, VideoWriter
 
             self.video = VideoWriter(video_path, 640, 480, 1.0 / self.dt, overwrite=True)
-            self.renderer = Renderer(plant.m, 640, 480)
+            self.renderer = Renderer(
+                plant.m, 640, 480, shadows=False
+            )  # software GL: the field is 0.7 M triangles
 
     def step(self, k: int, plant, readings, out, command, truth, done: bool) -> None:
         if self.video is not None:
