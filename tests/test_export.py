@@ -168,7 +168,8 @@ COMMITTED_RUNS = sorted(p.parent for p in (ROOT / "results").rglob("config.json"
 @pytest.mark.parametrize("run", COMMITTED_RUNS, ids=lambda p: str(p.relative_to(ROOT / "results")))
 def test_every_committed_run_exports_and_the_deploy_loop_accepts_its_spec(run, tmp_path):
     """The layout change must keep every committed run loadable and exportable; the exported file's
-    observation spec is the one the deploy loop builds for Quadson (Caramel has no loop yet)."""
+    observation spec is the one the deploy loop builds (Quadson's or Caramel's), and the loop runs it
+    (they are true_state policies: the base velocity is an input)."""
     from quadson_mjx import deploy
 
     out = export.export_run(run, tmp_path / "policy.onnx")
@@ -178,8 +179,15 @@ def test_every_committed_run_exports_and_the_deploy_loop_accepts_its_spec(run, t
     assert (policy.obs_size, policy.action_size) == (spec.size, Spec.from_json(props["action_spec"]).size)
     action = policy(np.zeros(policy.obs_size, np.float32))
     assert np.all(np.isfinite(action)) and np.all(np.abs(action) <= 1.0)
-    if meta["env_config"]["robot"] == "quadson":
-        assert deploy.DeployLoop(policy).config.obs_spec == spec
+    loop = deploy.DeployLoop(policy)
+    assert loop.config.obs_spec == spec and loop.config.robot.name == meta["env_config"]["robot"]
+    assert meta["motors"] == list(loop.config.robot.motor_names)
+    home = loop.config.robot.home_motor
+    for _ in range(10):
+        out = loop.step(
+            np.array([1.0, 0, 0, 0]), np.zeros(3), home, command=loop.gait_command, base_lin_vel=np.zeros(3)
+        )
+        assert out.fault == "ok" and np.all(np.isfinite(out.motor_targets))
 
 
 # --- format 3: the robot's metadata ------------------------------------------------------------------
