@@ -17,6 +17,7 @@ import errno
 import functools
 import math
 import os
+import stat
 import sys
 import tempfile
 from pathlib import Path
@@ -95,6 +96,8 @@ def atomic_write(path, mode: str = "wb"):
     if not os.access(folder, os.W_OK):
         raise UsageError(f"{path}: the folder {folder} is not writable; choose a writable path")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    with contextlib.suppress(OSError):  # mkstemp makes 0600: give the mode a plain open would
+        os.fchmod(fd, _new_file_mode(path))
     try:
         with os.fdopen(fd, mode) as f:
             yield f
@@ -105,6 +108,18 @@ def atomic_write(path, mode: str = "wb"):
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def _new_file_mode(path: Path) -> int:
+    """The mode `open(path, "w")` would leave: the file's own when it exists, else 0666 less the
+    umask (read from /proc, since os.umask can only be read by setting it); 0644 if unknown."""
+    with contextlib.suppress(OSError):
+        return stat.S_IMODE(os.stat(path).st_mode)
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        status = Path("/proc/self/status").read_text()
+        umask = int(status.split("Umask:", 1)[1].split()[0], 8)
+        return 0o666 & ~umask
+    return 0o644
 
 
 def write_bytes_atomic(path, data: bytes) -> None:
