@@ -273,28 +273,50 @@ def _events(path):
         return [json.loads(m.data)["event"] for _, c, m in reader.iter_messages(topics=["/train/log"])]
 
 
-def test_regression_nan_learning_rate_stops_at_the_first_non_finite_evaluation(tmp_path, monkeypatch):
-    # The issue's run (learning rate 1e300, inf in float32) with the config check switched off, to
-    # reach the guard: brax trained every epoch to NaN parameters, wrote NaN checkpoints and pointed
-    # `latest` at one. Now the first evaluation after the NaN epoch stops the run; nothing non-finite
-    # is written and `latest` names the step-0 checkpoint.
-    monkeypatch.setattr("quadson_mjx.training.loop.check_ppo_config", lambda cfg: None)
+def test_regression_nan_parameters_stop_training_at_the_first_non_finite_evaluation(tmp_path, monkeypatch):
+    # The issue's run (learning rate 1e300: inf in float32, refused by the config check now) trained
+    # every epoch to NaN parameters, wrote NaN checkpoints and pointed `latest` at one. Here the
+    # first training epoch's parameters are made NaN as an infinite learning rate makes them (fault
+    # injected after brax's compiled epoch, so the programs are tests/test_training.py's, from the
+    # compilation cache): the evaluation after it stops the run, nothing non-finite is written and
+    # `latest` names the step-0 checkpoint.
+    from quadson_mjx import compat
+
+    wrap = compat.BraxTrainingState._wrap
+
+    def poisoned_wrap(self, epoch_fn):
+        def epoch(training_state, env_state, keys):
+            out = epoch_fn(training_state, env_state, keys)
+            nan_params = jax.tree.map(lambda x: x * np.float32("nan"), out[0].params)
+            return (out[0].replace(params=nan_params), *out[1:])
+
+        return wrap(self, epoch)
+
+    monkeypatch.setattr(compat.BraxTrainingState, "_wrap", poisoned_wrap)
     run = tmp_path / "R"
+    ppo_cfg = apply_overrides(training.ppo_config("test"), ["num_evals=3", "num_timesteps=192"])
     with pytest.raises(training.TrainingDiverged) as info:
-        training.train(_small_env(), _ppo("learning_rate=1e300"), run, progress_stream=io.StringIO())
+        training.train(_small_env(), ppo_cfg, run, progress_stream=io.StringIO())
     message = str(info.value)
-    assert "training diverged at evaluation 1 of 3 (after training epoch 1, step 64)" in message
-    assert "non-finite training state" in message and "the last finite one: step 0" in message
+    assert "training diverged at evaluation 1 of 2 (after training epoch 1, step 128)" in message
+    assert "non-finite training state .params" in message and "the last finite one: step 0" in message
     assert len(message.splitlines()) == 1
     path, step = training.latest_checkpoint(run)
     assert step == 0 and training.verify_checkpoint(path)
     written = sorted(p.name for p in (run / "checkpoints").iterdir())
     assert written == ["latest", "step_000000000000.msgpack", "step_000000000000.msgpack.sha256"]
-    params = training.load_checkpoint(path, OBS, ACT, _ppo())
+    params = training.load_checkpoint(path, OBS, ACT, ppo_cfg)
     assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(params))
     events = _events(run / "train.mcap")
     assert events[0] == "start" and events[-1].startswith("failed: TrainingDiverged")
     assert training.lock_holder(run) is None
+
+
+def test_non_finite_losses_and_reward_are_found():
+    metrics = {"training/total_loss": 1.0, "training/v_loss": np.inf, "training/sps": 5.0}
+    assert guards.non_finite_metrics(metrics) == ["training/v_loss"]
+    assert guards.non_finite_metrics({"eval/episode_reward": np.float32("nan")}) == ["eval/episode_reward"]
+    assert guards.non_finite({"a": np.ones(2), "b": np.array([1.0, np.nan]), "n": np.arange(3)}) == ["['b']"]
 
 
 def test_save_checkpoint_refuses_non_finite_parameters(tmp_path):
@@ -518,62 +540,61 @@ def _script(*args):
     ]
 
 
-def test_regression_second_sigint_during_compilation_exits_130_and_stays_resumable(tmp_path):
-    # Two Ctrl-C during the first compilation ended in a segfault (exit 139, two of two tries).
-    run = tmp_path / "R"
-    proc = subprocess.Popen(
-        _script("--run-dir", str(run), "--env.episode_length_s=0.2", *[f"--ppo.{o}" for o in RUN]),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    deadline = time.monotonic() + 120
-    while not (run / "train.mcap").exists():  # configs written, compiling next
-        assert proc.poll() is None and time.monotonic() < deadline, "the run did not start"
-        time.sleep(0.1)
-    time.sleep(1.0)  # into brax's first compilations (no compilation cache)
-    assert not (run / "checkpoints" / "latest").exists()
-    proc.send_signal(signal.SIGINT)
-    time.sleep(0.5)
-    t0 = time.monotonic()
-    proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=60)
-    assert proc.returncode == 130, out[-3000:]
-    assert time.monotonic() - t0 < 10  # at once, not after the compilation
-    assert "Traceback" not in out and "second SIGINT: stopped at once" in out
-    assert _events(run / "train.mcap") == ["start", "interrupted"]
-    assert training.lock_holder(run) is None
-    _, ppo_cfg = training.load_run_config(run)
-    assert training.resume_point(run, ppo_cfg) == (0, None)  # resumable: it starts over from step 0
-
-
-def test_regression_two_trainers_on_one_directory(tmp_path):
-    # The issue's reproduction: the second trainer (another network size) overwrote config.json.
-    run = tmp_path / "D"
+@pytest.fixture(scope="module")
+def contested_run(tmp_path_factory):
+    """The issue's two reproductions on one trainer (one compilation, no cache): a second trainer
+    started on its directory while it compiles, with another network size; then two SIGINTs 0.5 s
+    apart, still during the first compilations."""
+    run = tmp_path_factory.mktemp("contested") / "D"
     first = subprocess.Popen(
         _script("--run-dir", str(run), "--env.episode_length_s=0.2", *[f"--ppo.{o}" for o in RUN]),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
     )
+    result = {"run": run, "pid": first.pid}
     try:
         deadline = time.monotonic() + 120
-        while not (run / "config.json").exists():
+        while not (run / "train.mcap").exists():  # configs written, compiling next
             assert first.poll() is None and time.monotonic() < deadline, "the first run did not start"
             time.sleep(0.1)
-        before = (run / "config.json").read_bytes()
-        second = subprocess.run(
+        result["config"] = (run / "config.json").read_bytes()
+        result["second"] = subprocess.run(
             _script("--run-dir", str(run), "--ppo.policy_hidden=16"),
             capture_output=True,
             text=True,
             timeout=120,
         )
-        assert second.returncode == 2, second.stderr[-2000:]
-        assert f"in use by process {first.pid}" in _one_line(second.stderr)
-        assert (run / "config.json").read_bytes() == before
+        result["config_after"] = (run / "config.json").read_bytes()
+        result["latest_before_signals"] = (run / "checkpoints" / "latest").exists()
     finally:
         first.send_signal(signal.SIGINT)
-        time.sleep(0.3)
+        time.sleep(0.5)
+        t0 = time.monotonic()
         first.send_signal(signal.SIGINT)
-        first.communicate(timeout=60)
-    assert first.returncode == 130
+        result["out"], _ = first.communicate(timeout=60)
+        result["exit_s"] = time.monotonic() - t0
+    result["returncode"] = first.returncode
+    return result
+
+
+def test_regression_two_trainers_on_one_directory(contested_run):
+    # The second trainer overwrote config.json (its config said [16], its checkpoints [8]) and died
+    # with a FileExistsError. Now it refuses with one line naming the first one's pid.
+    second = contested_run["second"]
+    assert second.returncode == 2, second.stderr[-2000:]
+    assert f"in use by process {contested_run['pid']}" in _one_line(second.stderr)
+    assert contested_run["config_after"] == contested_run["config"]
+
+
+def test_regression_second_sigint_during_compilation_exits_130_and_stays_resumable(contested_run):
+    # Two Ctrl-C during the first compilation ended in a segfault (exit 139, two of two tries).
+    run, out = contested_run["run"], contested_run["out"]
+    assert not contested_run["latest_before_signals"]  # still before the first checkpoint
+    assert contested_run["returncode"] == 130, out[-3000:]
+    assert contested_run["exit_s"] < 10  # at once, not after the compilation
+    assert "Traceback" not in out and "second SIGINT: stopped at once" in out
+    assert _events(run / "train.mcap") == ["start", "interrupted"]
+    assert training.lock_holder(run) is None
+    _, ppo_cfg = training.load_run_config(run)
+    assert training.resume_point(run, ppo_cfg) == (0, None)  # resumable: it starts over from step 0

@@ -23,7 +23,6 @@ Ctrl-C or SIGTERM stops at the next safe point with status 130 (twice: at once, 
 
 from __future__ import annotations
 
-import argparse
 import os
 import signal
 import sys
@@ -35,7 +34,7 @@ import jax
 from quadson_mjx import tasks, training
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env_config import GAIT_RECIPES, check_env_config
-from quadson_mjx.errors import UsageError, one_line_errors
+from quadson_mjx.errors import ArgumentParser, UsageError, one_line_errors
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
 from quadson_mjx.training.guards import check_backend
 
@@ -43,13 +42,8 @@ from quadson_mjx.training.guards import check_backend
 TASK_FLAG_DEFAULTS = {"robot": "quadson", "env_preset": "seed", "terrain": "flat", "gait": None}
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line (argparse prints its usage first), exit status 2
-        raise UsageError(f"{message} (see --help)")
-
-
 def parse(argv):
-    p = _Parser(description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V --ppo.KEY=V")
+    p = ArgumentParser(description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V --ppo.KEY=V")
     p.add_argument(
         "--preset", default=None, help="ppo preset: gpu, cpu or test (default: gpu if a GPU is present)"
     )

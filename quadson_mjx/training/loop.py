@@ -138,7 +138,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             event = {"event": "interrupted", "step": live["step"], "reason": reason}
             live["log"].log("/train/log", event, time.time_ns())
             live["log"].close()
-        print(f"{reason}: stopped at once; continue the run with --resume {run_dir}", file=sys.stderr)
+        if (run_dir / "config.json").exists():
+            advice = f"the log is closed; continue the run with --resume {run_dir}"
+        else:
+            advice = "nothing was saved yet: run the same command again"
+        print(f"\n{reason}: stopped at once; {advice}", file=sys.stderr)
 
     stop.emergency = emergency
     if resume:

@@ -157,15 +157,18 @@ class _Stop:
             os.write(sys.stderr.fileno(), message.encode())
 
     def _exit_now(self, signum: int) -> None:
-        name = signal.Signals(signum).name
-        with contextlib.suppress(Exception):
-            if callable(self.emergency):
-                self.emergency(f"second {name}")
+        reason = f"second {signal.Signals(signum).name}"
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
-        with contextlib.suppress(OSError, ValueError):
-            os.write(sys.stderr.fileno(), f"\nsecond {name}: stopped at once\n".encode())
+        with contextlib.suppress(Exception):
+            if callable(self.emergency):
+                self.emergency(reason)  # closes what must be closed, says how to continue
+            else:
+                os.write(sys.stderr.fileno(), f"\n{reason}: stopped at once\n".encode())
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
         os._exit(130)
 
     def handler(self, signum, frame):
