@@ -7,7 +7,8 @@ runs the policy and the inverse kinematics only on readings that pass, and hands
 
   * "ok": the policy's targets.
   * "leg_hold": some legs' IK was invalid (target out of reach or beyond a limit): those legs keep
-    their last valid targets, the others follow the policy.
+    their last valid targets, the others follow the policy. When some leg stays invalid for longer
+    than hold_s, it becomes a fault (below) until every leg is valid again.
   * "hold": a fault this tick (non-finite or implausible sensor, non-finite policy output, a tick
     without sensors): every motor keeps the last valid targets.
   * "easing_home": the fault has lasted hold_s: the targets move in a straight line (joint space)
@@ -138,6 +139,7 @@ class SafetyLayer:
         self.last_valid = start.copy()
         self.sent = start.copy()
         self.fault_s = 0.0  # time in the current fault [s]
+        self.leg_hold_s = 0.0  # time some leg's IK has been invalid without a break [s]
         self.ease_from = None
 
     @property
@@ -163,6 +165,13 @@ class SafetyLayer:
             if not per_motor.any():
                 usable = False
                 self.counts["ik_invalid_all"] += 1
+        if usable and not per_motor.all():  # some legs' IK invalid: hold them, for hold_s at most
+            self.leg_hold_s += self.ctrl_dt
+            if self.leg_hold_s > self.cfg.hold_s:
+                usable = False
+                self.counts["ik_invalid_persistent"] += 1
+        elif usable:
+            self.leg_hold_s = 0.0
         if usable:
             self.fault_s, self.ease_from = 0.0, None
             goal = np.where(per_motor, targets, self.last_valid)

@@ -438,3 +438,15 @@ def test_sensor_observation_entries_from_hand_computed_readings():
     np.testing.assert_allclose(o3["motor_vel@-1"], 0.5, rtol=1e-5)
     np.testing.assert_allclose(o3["last_action@-1"], a1, atol=1e-7)
     np.testing.assert_allclose(o3["motor_pos@-2"], home, atol=1e-6)
+
+
+def test_a_leg_invalid_for_longer_than_hold_s_becomes_a_fault():
+    cfg = SafetyConfig(max_rate_rps=100.0, hold_s=0.06, ease_s=0.04)  # 3 ticks, then 2 ticks of ease
+    layer = SafetyLayer(cfg, np.tile([[-2.0, 2.0]], (12, 1)), np.zeros(12), 0.02)
+    layer.filter(np.full(12, 0.5), np.ones(4, bool))
+    one_bad = np.array([True, True, False, True])
+    states = [layer.filter(np.full(12, 0.6), one_bad)[1] for _ in range(9)]
+    assert states == [Fault.LEG_HOLD] * 3 + [Fault.HOLD] * 3 + [Fault.EASING_HOME, Fault.HOME, Fault.HOME]
+    assert layer.counts["ik_invalid_persistent"] == 6
+    out, state = layer.filter(np.full(12, 0.6), np.ones(4, bool))  # every leg valid again
+    assert state == Fault.OK and np.allclose(out, 0.6)
