@@ -236,3 +236,21 @@ def test_true_state_policy_closed_loop_on_stones_writes_a_readable_mcap(exported
     assert set(step["sensors"]) == {"imu_quat_wxyz", "gyro", "motor_pos"}
     summary = S.summarize([row])
     assert summary[0]["runs"] == 1 and summary[0]["vx_rms"] == pytest.approx(row["vx_rms"])
+
+
+def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, capsys, tmp_path):
+    from quadson_mjx.cli.sim2sim import main
+
+    path, _ = exported
+    cases = [
+        [str(tmp_path / "missing.onnx")],
+        [str(path), "--latency-ms", "200"],
+        [str(path), "--velocity-source", "estimator"],
+        [str(path), "--terrain", "ice"],
+        [str(path), "--seeds", "0"],
+        [str(path), "--out", "/proc/version/x"],  # below a regular file: not creatable, even as root
+    ]
+    for argv in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error: ") and "\n" not in err, (argv, err)
