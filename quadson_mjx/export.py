@@ -5,9 +5,13 @@
 
 The output's suffix picks the format; an existing file is kept unless --overwrite is given. The .npz
 holds the observation normaliser (mean, std) and the policy MLP's layers of a brax PPO
-checkpoint (quadson_mjx.training), plus the env and PPO configs and the task's observation and
-action specification (quadson_mjx.obs_spec: ordered entries, sizes, units, sensors) as JSON, so the
-robot side checks the layout it builds against the one the policy was trained on.
+checkpoint (quadson_mjx.training; with an asymmetric critic the actor's "state" normaliser only),
+plus the metadata of quadson_mjx.export_meta as JSON: env and PPO configs, the observation and
+action specification (quadson_mjx.obs_spec), the robot's motors, home pose and limits, the trained
+sensor ranges, the model's identity and the run's provenance, so the robot side checks the layout it
+builds against the one the policy was trained on. A checkpoint with non-finite weights is refused;
+the file is written atomically (quadson_mjx.errors.atomic_write). Bad inputs on the command line:
+one line on stderr, exit status 2.
 
 Inference is brax's deterministic PPO policy: obs -> (obs - mean) / std -> Dense + swish for every
 hidden layer -> Dense -> the Gaussian's mean, in float32; then, by the run's policy_distribution,
@@ -180,70 +184,6 @@ def check_output(out_path: str | Path, overwrite: bool = False) -> Path:
     return out_path
 
 
-def model_identity(robot, env_cfg) -> dict:
-    """The identity of the model a run trained on: sha256 of the MJCF that MuJoCo writes back for
-    env_model.training_model (the robot's scene with the config's physics options) and of its height
-    field, the physics timestep, and each motor's actuator gains (kp, kv, force range)."""
-    import hashlib
-    import tempfile
-
-    import mujoco
-
-    from quadson_mjx.env_model import name_ids, training_model
-
-    m = training_model(robot, env_cfg)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "model.xml"
-        mujoco.mj_saveLastXML(str(path), m)  # the XML of the model just loaded, with m's values
-        xml = path.read_bytes()
-    ids = name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators)
-    return {
-        "mjcf_sha256": hashlib.sha256(xml).hexdigest(),
-        "hfield_sha256": hashlib.sha256(np.asarray(m.hfield_data, np.float32).tobytes()).hexdigest(),
-        "timestep_s": float(m.opt.timestep),
-        "actuator_gains": {
-            name: {
-                "kp": float(m.actuator_gainprm[i, 0]),
-                "kv": float(-m.actuator_biasprm[i, 2]),
-                "forcerange": [float(v) for v in m.actuator_forcerange[i]],
-            }
-            for name, i in zip(robot.actuators, ids, strict=True)
-        },
-    }
-
-
-def robot_meta(env) -> dict:
-    """What the robot's side needs to know of the robot: motor and actuator names and order, home
-    pose and limits (deploy_robots, from the numpy kinematics the loop runs), and for Caramel the
-    geometry and gait of its numpy IK and trot (robots/caramel/gait_np.py)."""
-    from quadson_mjx.deploy_robots import robot_kinematics
-    from quadson_mjx.robots.caramel import gait_np as caramel_np
-
-    cfg = json.loads(_config_json(env.config))
-    extra = {}
-    if env.robot.name == "caramel":
-        gait = {k: (np.asarray(v).tolist()) for k, v in env.gait_params._asdict().items()}
-        extra["caramel"] = {"geometry": caramel_np.geometry().to_dict(), "gait": gait}
-    r = robot_kinematics(cfg, extra)
-    if tuple(r.motor_names) != tuple(env.robot.motor_joints):
-        raise ValueError(f"{env.robot.name}: the deploy loop's motor order differs from the model's")
-    return {
-        "robot": r.name,
-        "motors": list(r.motor_names),
-        "actuators": list(r.actuator_names),
-        "home_motor_pos_rad": r.home_motor.tolist(),
-        "motor_limits_rad": r.motor_limits.tolist(),
-        "servo_speed_rps": r.servo_speed_rps,
-        **extra,
-    }
-
-
-def _config_json(cfg) -> str:
-    from quadson_mjx.config import to_json
-
-    return to_json(cfg)
-
-
 def export_run(
     run_dir: str | Path, out_path: str | Path, checkpoint: str | Path | None = None, overwrite: bool = False
 ) -> Path:
@@ -256,42 +196,16 @@ def export_run(
     from quadson_mjx import training
     from quadson_mjx.env import LocomotionEnv
     from quadson_mjx.errors import atomic_write
-    from quadson_mjx.provenance import versions
+    from quadson_mjx.export_meta import run_meta
 
     env_cfg, ppo_cfg = training.load_run_config(run_dir)
     env = LocomotionEnv(env_cfg)
     path = Path(checkpoint) if checkpoint else training.latest_checkpoint(run_dir)[0]
     params = training.load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
-    run_config = json.loads((Path(run_dir) / "config.json").read_text())
-    cfg = env.config
-    spec = env.obs_spec
-    meta = {
-        "format_version": FORMAT_VERSION,
-        "checkpoint": str(path.name),
-        "env_config": json.loads(_config_json(env_cfg)),
-        "ppo_config": json.loads(_config_json(ppo_cfg)),
-        "ctrl_dt_s": env.ctrl_dt,
-        "action_scale_m": float(env_cfg.action_scale_m),
-        "obs_spec": spec.to_json(),
-        "obs_names": list(spec.names),
-        "action_spec": env.action_spec.to_json(),
-        **robot_meta(env),
-        # the ranges the policy was trained with (env_config: sensor, noise, randomization)
-        "trained_sensor_model": {
-            "observation": cfg.observation,
-            "randomize": bool(cfg.randomize),
-            "sensor": json.loads(_config_json(cfg.sensor)) if "sensor" in cfg else {},
-            "noise": json.loads(_config_json(cfg.noise)),
-            "actuation_latency_s": list(cfg.randomization.latency_s),
-        },
-        "model": model_identity(env.robot, env_cfg),
-        # the training run's versions and commit (config.json), not this machine's
-        "provenance": run_config.get("versions", {}),
-        "exported_with": versions(),
-    }
+    meta = run_meta(env, ppo_cfg, Path(run_dir), path)
     arrays = export_arrays(
         params,
-        spec.size,
+        env.obs_spec.size,
         env.action_size,
         bool(ppo_cfg.normalize_observations),
         meta,

@@ -13,7 +13,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 
-from quadson_mjx import export, training
+from quadson_mjx import export, export_meta, training
 from quadson_mjx.config import to_json
 from quadson_mjx.env_config import env_config
 from quadson_mjx.obs_spec import Spec
@@ -227,13 +227,13 @@ def test_export_metadata_lists_what_the_robot_needs(run_dir, tmp_path):
 def test_model_identity_tells_the_models_apart():
     from quadson_mjx.robots import get_robot
 
-    flat = export.model_identity(get_robot("quadson"), env_config())
-    again = export.model_identity(get_robot("quadson"), env_config())
-    rough = export.model_identity(get_robot("quadson"), env_config(terrain="rough"))
+    flat = export_meta.model_identity(get_robot("quadson"), env_config())
+    again = export_meta.model_identity(get_robot("quadson"), env_config())
+    rough = export_meta.model_identity(get_robot("quadson"), env_config(terrain="rough"))
     cfg = env_config()
     cfg.unlock()
     cfg.cone = "elliptic"  # a physics option of the training model
-    elliptic = export.model_identity(get_robot("quadson"), cfg)
+    elliptic = export_meta.model_identity(get_robot("quadson"), cfg)
     assert flat == again
     assert len({flat["mjcf_sha256"], rough["mjcf_sha256"], elliptic["mjcf_sha256"]}) == 3
 
