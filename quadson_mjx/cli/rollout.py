@@ -26,8 +26,8 @@ anything is compiled or written: an impossible or non-finite number (--vx nan), 
 MAX_SECONDS (an hour), an unknown gait or --env key or a value the env config refuses, an output
 that exists without --overwrite, or that lies in a missing or read-only folder, a missing run
 directory. The MCAP file is written as OUT.partial and renamed to OUT when the rollout has finished
-(an interrupted rollout leaves OUT.partial, readable with quadson_mjx.mcap_check); a long rollout
-prints its progress after every segment.
+(Ctrl-C leaves OUT.partial, readable with quadson_mjx.mcap_check, says so in one line and exits
+with status 130); a long rollout prints its progress after every segment.
 """
 
 from __future__ import annotations
@@ -302,12 +302,13 @@ def one(args, overrides, controller_name, terrain, command, out: Path) -> None:
     except KeyboardInterrupt:
         if video is not None:
             video.abort()
-        if partial.exists():
-            print(
-                f"interrupted: the steps written so far are in {partial} "
-                f"(python -m quadson_mjx.mcap_check {partial} --recover {out})",
-                file=sys.stderr,
-            )
+        where = (
+            f": the steps written so far are in {partial} "
+            f"(python -m quadson_mjx.mcap_check {partial} --recover {out})"
+            if partial.exists()
+            else ""
+        )
+        print(f"interrupted{where}", file=sys.stderr)
         raise
     except BaseException:
         if video is not None:
@@ -347,11 +348,17 @@ class Progress:
             )
 
 
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
+
+
 @errors.one_line_errors
 def main(argv=None) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
     check_args(args, overrides)
-    return _main(args, overrides)
+    try:
+        return _main(args, overrides)
+    except KeyboardInterrupt:  # one() has said where the steps written so far are
+        return EXIT_INTERRUPTED
 
 
 def _main(args, overrides) -> int:
