@@ -83,10 +83,10 @@ def train(
     SIGINT and SIGTERM (Ctrl-C, a scheduler's preemption) are deferred while training: the run
     stops at the next safe point: before a training epoch or an evaluation, or after saving a
     checkpoint. A signal that arrives during an XLA compilation (tens of seconds on the first epoch
-    and evaluation) or a training epoch takes effect when it ends; a second signal stops at once.
-    Stopping raises StopRequested (a KeyboardInterrupt) after closing the log and saving the state.
-    A second signal during a compilation ends the process at once (os._exit(130), see
-    monitor._Stop) after closing the log; the run stays resumable from its last checkpoint.
+    and evaluation) or a training epoch takes effect when it ends. Stopping raises StopRequested
+    (a KeyboardInterrupt) after closing the log and saving the state. A second signal, even during
+    a compilation, ends the process at once (os._exit(130), see monitor._Stop) after closing the
+    log; the run stays resumable from its last checkpoint.
 
     One process at a time trains in a run directory: it holds run_dir/.lock (runs.run_dir_lock);
     another train or resume on it raises RunDirInUse naming the holder's pid. A loss, gradient or
