@@ -55,12 +55,17 @@ class SafetyConfig(NamedTuple):
     gyro_range_rps: float = GYRO_RANGE_RPS  # |gyro| component beyond this: not a reading [rad/s]
     encoder_margin_rad: float = 0.1  # encoder beyond a motor limit by more than this: a fault [rad]
     max_lin_vel_mps: float = 10.0  # |base_lin_vel| component beyond this: not an estimate [m/s]
+    # an invalid leg IK: "hold" that leg's last valid targets (leg_hold), or "clamp": send the IK's
+    # clamped angles as the simulator does (what the policy trained with)
+    ik_invalid: str = "hold"
 
     def checked(self) -> SafetyConfig:
         """self, or ValueError naming a value that is not a positive finite number."""
+        if self.ik_invalid not in ("hold", "clamp"):
+            raise ValueError(f"SafetyConfig.ik_invalid is {self.ik_invalid!r}; choose 'hold' or 'clamp'")
         for name, value in self._asdict().items():
-            if value is None and name == "max_rate_rps":
-                continue
+            if name == "ik_invalid" or (name == "max_rate_rps" and (value is None or value == math.inf)):
+                continue  # max_rate_rps inf: no rate limit
             if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
                 raise ValueError(f"SafetyConfig.{name} must be a finite number, got {value!r}")
             if value < 0 or (value == 0 and name not in ("hold_s", "encoder_margin_rad")):
@@ -161,6 +166,10 @@ class SafetyLayer:
         if usable:
             targets = np.asarray(targets, np.float64)
             legs = np.asarray(valid, bool) if valid is not None else np.ones(len(targets) // 3, bool)
+            if self.cfg.ik_invalid == "clamp":
+                if not legs.all():
+                    self.counts["ik_clamped_leg"] += 1
+                legs = np.ones_like(legs)
             per_motor = np.repeat(legs, len(targets) // len(legs)) & np.isfinite(targets)
             if not per_motor.any():
                 usable = False

@@ -450,3 +450,20 @@ def test_a_leg_invalid_for_longer_than_hold_s_becomes_a_fault():
     assert layer.counts["ik_invalid_persistent"] == 6
     out, state = layer.filter(np.full(12, 0.6), np.ones(4, bool))  # every leg valid again
     assert state == Fault.OK and np.allclose(out, 0.6)
+
+
+def test_clamp_mode_sends_the_simulators_clamped_targets_and_inf_turns_the_rate_limit_off():
+    cfg = SafetyConfig(max_rate_rps=math.inf, ik_invalid="clamp")
+    layer = SafetyLayer(cfg, np.tile([[-2.0, 2.0]], (12, 1)), np.zeros(12), 0.02)
+    out, state = layer.filter(np.full(12, 1.9), np.array([True, False, True, True]))
+    assert state == Fault.OK and np.allclose(out, 1.9)  # no hold, no rate limit
+    assert layer.counts["ik_clamped_leg"] == 1
+    out, state = layer.filter(np.full(12, np.nan), np.ones(4, bool))  # still never a non-finite target
+    assert state == Fault.HOLD and np.allclose(out, 1.9)
+    with pytest.raises(ValueError, match="ik_invalid"):
+        SafetyLayer(
+            SafetyConfig(max_rate_rps=1.0, ik_invalid="ignore"),
+            np.tile([[-1.0, 1.0]], (12, 1)),
+            np.zeros(12),
+            0.02,
+        )
