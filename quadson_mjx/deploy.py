@@ -199,8 +199,10 @@ class DeployLoop:
 
     @property
     def fault_counts(self) -> dict:
-        """Reason -> ticks it was seen since the loop was made (deploy_safety.check_sensors' names,
-        "policy_nonfinite", "command_nonfinite", "no_sensors", "ik_invalid_leg", "ik_invalid_all")."""
+        """Reason -> ticks it was seen since the loop was made: deploy_safety.check_sensors' names
+        (imu_nonfinite, imu_quat_norm, gyro_*, encoder_*, lin_vel_*), command_nonfinite,
+        policy_nonfinite, no_sensors / sensor_read_error, ik_invalid_leg, ik_invalid_persistent,
+        ik_invalid_all, ik_clamped_leg (ik_invalid="clamp")."""
         return dict(self.safety.counts)
 
     @property
