@@ -436,6 +436,28 @@ def test_regression_truncated_state_files_are_one_line_with_the_right_advice(tmp
             assert "optimiser's moments restart" in message
 
 
+def test_regression_truncated_state_files_on_resume_are_one_line(run_main, tmp_path):
+    from quadson_mjx.training.checkpoints import _save_npz
+
+    run = _fake_run(tmp_path / "R")
+    config = (run / "config.json").read_bytes()
+    for path, words in (
+        (training.training_state_path(run, 128), "optimiser's moments restart"),
+        (training.env_state_path(run, 128), "environments restarting from the run's initial states"),
+    ):
+        _save_npz(path, [np.ones(3, np.float32)], 128)
+        path.write_bytes(path.read_bytes()[:100])
+        status, err = run_main("--resume", str(run))
+        line = _one_line(err)
+        assert status == 2 and str(path) in line and words in line
+        path.unlink()
+        training.checksum_path(path).unlink()
+        if "env_state" not in path.name:  # the env state is read only beside a training state
+            _save_npz(path, [np.ones(3, np.float32)], 128)
+    assert (run / "config.json").read_bytes() == config  # refused before anything was rewritten
+    assert training.lock_holder(run) is None
+
+
 @pytest.mark.parametrize(
     "edit",
     [
