@@ -32,7 +32,7 @@ from quadson_mjx.quat import quat_mul, quat_to_rpy
 from quadson_mjx.robots import get_robot
 
 VELOCITY_SOURCES = ("true", "zero", "command")
-TERRAINS = ("flat", "stones")
+TERRAINS = P.TERRAINS
 WARMUP_S = 1.0  # tracking errors count after this much of a run [s]
 # The command sweep (vx [m/s], vy [m/s], yaw rate [rad/s]): standing, forward and back, sideways,
 # turning, and combinations, inside the training ranges (vx -0.3..0.5, vy +-0.2, yaw +-0.8)
@@ -236,6 +236,7 @@ def run_episode(
         "fall_time_s": fall_t,
         "off_field": bool(off and not fell),
         "steps": k + 1,
+        "sim_s": (k + 1) * dt,
         "tracked_steps": int(len(e)),
         "sq_err_sum": sq.tolist(),  # for pooling runs
         "vx_rms": _rms(sq[0], len(e)),

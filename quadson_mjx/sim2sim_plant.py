@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from quadson_mjx.quat import quat_mul, quat_rotate, quat_rotate_inverse, quat_to_rpy
-from quadson_mjx.sim2sim_model import TIMESTEP_S, plant_model  # noqa: F401 (the plant's model)
+from quadson_mjx.sim2sim_model import TERRAINS, TIMESTEP_S, plant_model  # noqa: F401 (the plant's model)
 
 FIELD_GROUP = 0  # geom group of the ground (the scenes' floor); the robot's geoms are groups 2 and 3
 SETTLE_S = 0.5  # the robot stands on its home targets this long before the walk starts [s]

@@ -138,7 +138,7 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - t0
     summary = S.summarize(rows)
     print(S.format_table(summary))
-    sim_s = sum(r["steps"] for r in rows) * 0.02
+    sim_s = sum(r["sim_s"] for r in rows)
     print(f"{len(rows)} runs, {sim_s:.0f} s simulated in {wall:.1f} s wall ({a.workers} worker(s))")
     result = {
         "command": "python eval/sim2sim.py " + shlex.join(argv),
