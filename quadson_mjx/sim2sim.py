@@ -316,12 +316,12 @@ def suite_jobs(
     jobs = []
     for pol in policies:
         name, path = pol if isinstance(pol, tuple) else (Path(pol).stem, pol)
-        sources = velocity_sources if LoopAdapter(path).observes_velocity else ("true",)
-        for vs in sources:
+        observes = LoopAdapter(path).observes_velocity
+        for vs in velocity_sources if observes else ("true",):
             for terrain in terrains:
                 for si, (label, sched, dur) in enumerate(schedules(which, seconds)):
                     for j, seed in enumerate(seeds):
-                        tag = f"{name}_{vs}_{terrain}_{label}_s{seed}"
+                        tag = f"{name}_{vs if observes else 'none'}_{terrain}_{label}_s{seed}"
                         want = out_dir is not None and (mcap == "all" or (mcap == "first" and j == 0))
                         jobs.append(
                             {

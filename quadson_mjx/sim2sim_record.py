@@ -18,6 +18,7 @@ class Recorder:
         self.plant, self.dt = plant, adapter.ctrl_dt
         robot = plant.robot
         self.writer = self.video = self.renderer = None
+        self.t_ns = 0
         if mcap_path:
             w = RolloutWriter(mcap_path, plant.m, 1, self.dt, robot.legs, overwrite=True, viz_envs=1)
             meta = {k: v for k, v in job.items() if k not in ("mcap", "video", "sensors")}
@@ -85,7 +86,7 @@ class Recorder:
             base_below_terrain=one(truth["clearance"] < 0.0),
             motor_targets=one(out.motor_targets),
         )
-        t_ns = step_time_ns(k, self.dt)
+        t_ns = self.t_ns = step_time_ns(k, self.dt)
         extra = {
             "sensors": {
                 "imu_quat_wxyz": readings.imu_quat_wxyz,
@@ -107,7 +108,7 @@ class Recorder:
 
     def close(self) -> None:
         if self.writer is not None:
-            self.writer.log(0, "info", "end")
+            self.writer.log(self.t_ns, "info", "end")
             self.writer.close()
         if self.video is not None:
             self.video.close()
