@@ -254,3 +254,16 @@ def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, capsys, tmp_pat
         assert main(argv) == 2, argv
         err = capsys.readouterr().err.strip()
         assert err.startswith("error: ") and "\n" not in err, (argv, err)
+
+
+def test_caramel_policy_runs_through_its_deploy_loop_in_the_plant(tmp_path):
+    # the plant is robot-generic: Caramel's serial legs, its servos (no second speed limit), its
+    # stones (2 cm relief), its termination, through Caramel's deploy loop
+    from quadson_mjx import export
+
+    path = export.export_run("results/caramel/policy", tmp_path / "caramel.onnx")
+    job = S.suite_jobs([("caramel", path)], terrains=("stones",), which="sweep", seconds=1.5, seeds=(0,))[1]
+    row = S.run_one(job)
+    assert row["robot"] == "caramel" and row["steps"] == 75 and not row["fell"]
+    assert row["commands"] == [[0.08, 0.0, 0.0]]  # 0.15 m/s clipped to Caramel's trained range
+    assert all(math.isfinite(row[k]) for k in ("vx_rms", "vy_rms", "yaw_rate_rms"))
