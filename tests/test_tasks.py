@@ -19,8 +19,10 @@ ROOT = Path(__file__).resolve().parents[1]
 NAMES = [
     "QuadsonFlat", "QuadsonRough", "QuadsonCommandFlat", "QuadsonCommandRough",
     "QuadsonJoystickFlat", "QuadsonJoystickRough",
+    "QuadsonJoystickTrueStateFlat", "QuadsonJoystickTrueStateRough",
     "CaramelFlat", "CaramelRough", "CaramelCommandFlat", "CaramelCommandRough",
     "CaramelJoystickFlat", "CaramelJoystickRough",
+    "CaramelJoystickTrueStateFlat", "CaramelJoystickTrueStateRough",
     "QuadsonGaitWalk", "QuadsonGaitTrot", "QuadsonGaitPace", "QuadsonGaitBound", "QuadsonGaitGallop",
 ]  # fmt: skip
 
@@ -30,7 +32,13 @@ OLD_FAST_PHYSICS = {"base_terrain_contact": False, "joint_limits": False}
 OLD_ENV_PRESETS = {
     "seed": {**OLD_FAST_PHYSICS},
     "command": {**OLD_FAST_PHYSICS, "command_tracking": True},
-    "robust": {**OLD_FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
+    "robust_true_state": {**OLD_FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
+}
+# since then: the robust preset's actor observes the robot's sensors, its critic the privileged state
+OLD_ENV_PRESETS["robust"] = {
+    **OLD_ENV_PRESETS["robust_true_state"],
+    "observation": "sensors",
+    "asymmetric_critic": True,
 }
 
 
@@ -44,7 +52,10 @@ def old_script_config(robot, env_preset, terrain, gait, gait_action):
 # Committed run directories -> (task, overrides): the saved env config (keys added since, with
 # their old values) is the task's config with these overrides.
 COMMITTED_RUNS = {
-    "results/policy_h100_joystick": ("QuadsonJoystickRough", []),
+    # trained before the robust recipe observed the robot's sensors: its true_state twin
+    "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
+    # the robust recipe with 3 ticks of sensor history
+    "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     "results/gaits/pace": ("QuadsonGaitPace", []),
@@ -82,6 +93,9 @@ def test_task_contents_by_hand():
         joystick.terrain == "rough" and joystick.command_tracking and joystick.randomize and joystick.pushes
     )
     assert joystick.command_resample_s == (4.0, 8.0) and joystick.termination.base_below_terrain
+    assert joystick.observation == "sensors" and joystick.asymmetric_critic
+    true_state = tasks.make_task_config("QuadsonJoystickTrueStateRough")
+    assert true_state.observation == "true_state" and not true_state.asymmetric_critic
     bound = tasks.make_task_config("QuadsonGaitBound")
     assert bound.gait == "bound" and bound.randomize and bound.reward.target_gait_speed
     assert bound.terrain == "flat" and not bound.command_tracking

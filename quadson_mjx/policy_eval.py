@@ -1,0 +1,127 @@
+"""How well trained policies track commands, measured the way the joystick targets are stated: many
+environments in MJX, each holding one command of a sweep for a whole trial, RMS of the vx, vy and
+yaw-rate errors over every control step after each episode's first second (not smoothed), and the
+share of environments that fell.
+
+A policy that observes the simulator's base velocity (the "true_state" observation) can be fed
+another velocity instead, as a robot without a state estimator would: `velocity_source` "zero" (the
+entries set to 0) or "command" (the commanded vx, vy as the estimate, 0 vertical).
+
+    rows = evaluate([("results/policy_h100_joystick", "true"), ("runs/new", "true")],
+                    commands, terrain="rough", seconds=20.0, replicas=4)
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from quadson_mjx import rollout as R
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.training import load_policy
+
+VELOCITY_SOURCES = ("true", "zero", "command")
+SETTLE_S = 1.0  # the first second of every episode is left out of the RMS
+
+
+def fed_velocity(policy, env, source: str):
+    """policy(obs, key) with its observation's base_lin_vel entry replaced by `source` (VELOCITY_SOURCES);
+    the policy itself for "true". Raises ValueError for a policy without that entry."""
+    if source not in VELOCITY_SOURCES:
+        raise ValueError(f"velocity source {source!r}; choose from {VELOCITY_SOURCES}")
+    if source == "true":
+        return policy
+    slices = env.obs_spec.slices()
+    if "base_lin_vel" not in slices:
+        raise ValueError("this policy observes no base velocity: only the velocity source 'true' applies")
+    vel, cmd = slices["base_lin_vel"], slices["command"]
+
+    def fed(obs, key):
+        if source == "zero":
+            estimate = jnp.zeros(obs.shape[:-1] + (3,), obs.dtype)
+        else:
+            command = obs[..., cmd]
+            estimate = jnp.concatenate([command[..., :2], jnp.zeros_like(command[..., :1])], axis=-1)
+        return policy(obs.at[..., vel].set(estimate), key)
+
+    return fed
+
+
+def evaluate_one(
+    run_dir, commands: np.ndarray, terrain: str, seconds: float, velocity_source: str = "true", seed: int = 0
+) -> dict:
+    """One policy over commands (N, 3) (vx [m/s], vy [m/s], yaw rate [rad/s]; one environment each,
+    its own randomized model when the run's config randomizes; pushes as configured) on `terrain`
+    for `seconds`. -> a row: per-axis RMS over the kept steps, falls (environments that fell at
+    least once / N), off_field (environments that reached the stone field's edge, a truncation),
+    and per-command RMS and falls."""
+    policy, env_cfg, _, _ = load_policy(Path(run_dir))
+    cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}"], prefix="env.")
+    env = LocomotionEnv(cfg)
+    policy = fed_velocity(policy, env, velocity_source)
+    n_envs, n_steps = len(commands), int(round(seconds / env.ctrl_dt))
+    sq = np.zeros((n_envs, 3))
+    kept = np.zeros(n_envs)
+    fell = np.zeros(n_envs, bool)
+    off = np.zeros(n_envs, bool)
+    t0 = time.monotonic()
+    for _, traj in R.run(
+        env,
+        R.policy_controller(policy),
+        jax.random.PRNGKey(seed),
+        n_envs,
+        n_steps,
+        segment_steps=250,
+        command=np.asarray(commands, np.float32),
+        randomize=bool(cfg.randomize),
+    ):
+        measured = np.stack([traj.lin_vel[..., 0], traj.lin_vel[..., 1], traj.ang_vel[..., 2]], -1)
+        keep = (traj.episode_step * env.ctrl_dt > SETTLE_S) & ~traj.done  # (T, B)
+        sq += np.sum(np.where(keep[..., None], np.square(measured - traj.command), 0.0), axis=0)
+        kept += keep.sum(axis=0)
+        fell |= traj.fall.any(axis=0)
+        off |= traj.off_field.any(axis=0)
+    rms = np.sqrt(sq.sum(axis=0) / max(kept.sum(), 1))
+    per_cmd = np.sqrt(sq / np.maximum(kept, 1)[:, None])
+    return {
+        "run": str(run_dir),
+        "observation": cfg.observation,
+        "velocity_source": velocity_source,
+        "terrain": terrain,
+        "envs": n_envs,
+        "seconds": seconds,
+        "rms_vx": float(rms[0]),
+        "rms_vy": float(rms[1]),
+        "rms_yaw_rate": float(rms[2]),
+        "falls": int(fell.sum()),
+        "fall_share": float(fell.mean()),
+        "off_field": int(off.sum()),
+        "wall_s": round(time.monotonic() - t0, 1),
+        "per_command": [
+            {
+                "command": [float(c) for c in commands[i]],
+                "rms": [float(v) for v in per_cmd[i]],
+                "fell": bool(fell[i]),
+            }
+            for i in range(n_envs)
+        ],
+    }
+
+
+def evaluate(
+    policies, commands, terrains=("flat", "rough"), seconds: float = 20.0, replicas: int = 1, seed: int = 0
+):
+    """policies: [(run_dir, velocity_source)], commands (N, 3) each repeated `replicas` times ->
+    rows of evaluate_one for every policy x terrain (the same commands and seeds for all)."""
+    cmds = np.repeat(np.asarray(commands, np.float32), replicas, axis=0)
+    return [
+        evaluate_one(run, cmds, terrain, seconds, source, seed)
+        for terrain in terrains
+        for run, source in policies
+    ]
