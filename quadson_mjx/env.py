@@ -445,27 +445,10 @@ class LocomotionEnv(Env):
 
     def _sensor_parts(self, qpos, qvel, info):
         """-> (entries of the "sensors" observation, info with its encoder and history buffers
-        moved on). qpos, qvel: the state the sensors read (sensor_latency_steps old)."""
-        readings = sensors.read_sensors(
-            self._config, qpos, qvel, qpos[self._motor_qpos], info, jax.random.fold_in(info["rng"], 3)
+        moved on): sensors.sensor_step on the state the sensors read (sensor_latency_steps old)."""
+        return sensors.sensor_step(
+            self._config, qpos, qvel, qpos[self._motor_qpos], info, self._ctrl_dt, self._phase(info)
         )
-        info = dict(info)
-        if info["last_encoders"] is None:  # reset: the first reading is also the one before
-            info["last_encoders"] = readings["motor_pos"]
-            first = {**readings, "motor_vel": jnp.zeros(12), "last_action": info["last_action"]}
-            block = sensors.history_block(first)
-            info["obs_history"] = jnp.tile(block[None], (self._config.obs_history - 1, 1))
-        parts, info["obs_history"] = sensors.sensor_observation_parts(
-            readings,
-            info["last_encoders"],
-            self._ctrl_dt,
-            info["last_action"],
-            info["obs_history"],
-            self._phase(info),
-            info["command"],
-        )
-        info["last_encoders"] = readings["motor_pos"]
-        return parts, info
 
     def _observe(self, data, info, base_state, sensed, contact):
         """-> (the observation: the actor's, or with asymmetric_critic {"state": actor,
@@ -484,36 +467,27 @@ class LocomotionEnv(Env):
 
     def _privileged_parts(self, data, info, contact) -> dict:
         """The simulator-only entries of obs_spec.privileged_observation (the critic's view)."""
-        _, lin_vel, ang_vel = self._base_state(data)
-        ground = terrain.ground_height(self._field, data.qpos[:2])
-        feet = data.geom_xpos[self._foot_geoms]  # (4, 3) world, at the last substep's start
-        under_feet = terrain.ground_height(self._field, feet[:, :2])
         sys = self.sys  # per-env under domain randomization
-        actuation_latency = info["latency_steps"] * sys.opt.timestep
-        sensor_latency = info.get("sensor_latency_steps", jnp.zeros((), jnp.int32)) * sys.opt.timestep
-        return {
-            "true_lin_vel": lin_vel,
-            "true_ang_vel": ang_vel,
-            "base_height": (data.qpos[2] - ground)[None],
-            "foot_contact": contact.astype(jnp.float32),
-            "foot_clearance": feet[:, 2] - self._foot_radius - under_feet,
-            "ground_under_feet": under_feet - ground,
-            "physics": jnp.stack(
-                [
-                    sys.geom_friction[self._foot_geoms[0], 0],
-                    sys.body_mass[self._base_body] / self._nominal_base_mass,
-                    jnp.mean(sys.actuator_gainprm[self._actuator_of_motor, 0] / self._nominal_gain),
-                    actuation_latency,
-                ]
-            ),
-            "sensor_model": jnp.concatenate(
-                [
-                    info.get("gyro_bias", jnp.zeros(3)),
-                    info.get("imu_tilt", jnp.zeros(2)),
-                    sensor_latency[None],
-                ]
-            ),
-        }
+        physics = jnp.stack(
+            [
+                sys.geom_friction[self._foot_geoms[0], 0],
+                sys.body_mass[self._base_body] / self._nominal_base_mass,
+                jnp.mean(sys.actuator_gainprm[self._actuator_of_motor, 0] / self._nominal_gain),
+                info["latency_steps"] * sys.opt.timestep,
+            ]
+        )
+        feet = data.geom_xpos[self._foot_geoms]  # (4, 3) world, at the last substep's start
+        return sensors.privileged_parts(
+            self._field,
+            data.qpos,
+            data.qvel,
+            feet,
+            self._foot_radius,
+            contact,
+            physics,
+            info,
+            sys.opt.timestep,
+        )
 
     def _get_obs(self, data, info, base_state=None):
         """The observation of `obs_spec` (seed 000's 29 values; + command when tracking), read by

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from quadson_mjx import terrain
 from quadson_mjx.obs_spec import HISTORY_ENTRIES, lagged
 from quadson_mjx.quat import quat_mul, quat_rotate_inverse, quat_to_rpy
 
@@ -139,3 +140,51 @@ def sensor_observation_parts(
         parts.update({lagged(n, lag): p for n, p in zip(HISTORY_ENTRIES, pieces, strict=True)})
     new_history = jnp.concatenate([history_block(parts)[None], history], axis=0)[: history.shape[0]]
     return parts, new_history
+
+
+def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -> tuple[dict, dict]:
+    """One tick of the "sensors" observation: read_sensors on qpos (nq,), qvel (nv,), motor_pos
+    (12,) (the state the sensors see), then sensor_observation_parts with info's buffers
+    (last_encoders, obs_history; None on reset: the first reading is also the one before, so
+    motor_vel is 0 and the history holds it), last_action, command, the episode's sensor errors
+    and its noise key; phase (4,) [rad]. -> (entries, info with last_encoders and obs_history moved on)."""
+    readings = read_sensors(cfg, qpos, qvel, motor_pos, info, jax.random.fold_in(info["rng"], 3))
+    info = dict(info)
+    if info["last_encoders"] is None:
+        info["last_encoders"] = readings["motor_pos"]
+        first = {**readings, "motor_vel": jnp.zeros_like(motor_pos), "last_action": info["last_action"]}
+        info["obs_history"] = jnp.tile(history_block(first)[None], (cfg.obs_history - 1, 1))
+    parts, info["obs_history"] = sensor_observation_parts(
+        readings,
+        info["last_encoders"],
+        ctrl_dt,
+        info["last_action"],
+        info["obs_history"],
+        phase,
+        info["command"],
+    )
+    info["last_encoders"] = readings["motor_pos"]
+    return parts, info
+
+
+def privileged_parts(field, qpos, qvel, feet, foot_radius, contact, physics, info: dict, timestep) -> dict:
+    """The simulator-only entries of obs_spec.privileged_observation: field the terrain's height
+    field, qpos (nq,), qvel (nv,), feet (4, 3) foot positions [m] (world), foot_radius (4,) [m],
+    contact (4,) bool, physics (4,) the episode's friction, mass scale, motor strength and actuation
+    latency [s]; info: its sensor errors (absent for a true_state observation: zeros), timestep [s]."""
+    _, lin_vel, ang_vel = base_state(qpos, qvel)
+    ground = terrain.ground_height(field, qpos[:2])
+    under_feet = terrain.ground_height(field, feet[:, :2])
+    latency = info.get("sensor_latency_steps", jnp.zeros((), jnp.int32)) * timestep
+    return {
+        "true_lin_vel": lin_vel,
+        "true_ang_vel": ang_vel,
+        "base_height": (qpos[2] - ground)[None],
+        "foot_contact": contact.astype(jnp.float32),
+        "foot_clearance": feet[:, 2] - foot_radius - under_feet,
+        "ground_under_feet": under_feet - ground,
+        "physics": physics,
+        "sensor_model": jnp.concatenate(
+            [info.get("gyro_bias", jnp.zeros(3)), info.get("imu_tilt", jnp.zeros(2)), latency[None]]
+        ),
+    }
