@@ -6,7 +6,7 @@ metadata checked before anything runs.
 
 A file is refused (ValueError, one line) when it is not a policy file (another suffix, damaged or
 truncated, no metadata), when its format version is one this loader does not know
-(export.FORMAT_VERSIONS), or when its observation cannot be built on a robot (`check_buildable`:
+(policy_file.FORMAT_VERSIONS), or when its observation cannot be built on a robot (`check_buildable`:
 an entry from the simulator, or one the loop has no sensor for). Numpy (and onnxruntime for an
 .onnx) only.
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from quadson_mjx import obs_spec
-from quadson_mjx.export import FORMAT_VERSIONS, NumpyPolicy
+from quadson_mjx.policy_file import FORMAT_VERSIONS, NumpyPolicy
 
 # observation entries the deploy loop builds (quadson_mjx.deploy), and lagged copies "name@-k" of
 # obs_spec.HISTORY_ENTRIES

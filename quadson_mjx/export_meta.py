@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadson_mjx.export import FORMAT_VERSION
+from quadson_mjx.policy_file import FORMAT_VERSION
 
 
 def model_identity(robot, env_cfg) -> dict:
