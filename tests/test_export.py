@@ -185,7 +185,11 @@ def test_every_committed_run_exports_and_the_deploy_loop_accepts_its_spec(run, t
     home = loop.config.robot.home_motor
     for _ in range(10):
         out = loop.step(
-            np.array([1.0, 0, 0, 0]), np.zeros(3), home, command=loop.gait_command, base_lin_vel=np.zeros(3)
+            np.array([1.0, 0, 0, 0]),
+            np.zeros(3),
+            home,
+            command=loop.gait_command,
+            base_lin_vel=np.zeros(3) if loop.needs_lin_vel else None,
         )
         assert out.fault == "ok" and np.all(np.isfinite(out.motor_targets))
 
