@@ -2,7 +2,12 @@
 works around, measured, and the upstream issue where one exists, so it can be deleted once fixed:
 
 * `patch_brax`: `jax.device_put_replicated`, removed from jax, still called by brax PPO.
-* `brax_multi_device`: brax's `jax.pmap` as one sharded `jit` (jax's pmap crashes XLA on two GPUs).
+* `brax_multi_device`: brax's `jax.pmap` as one sharded `jit` (jax's pmap crashes XLA on two GPUs),
+  over one mesh of every process's devices when several processes train (jax.distributed).
+* `brax_multi_process`: the randomness of a multi-process run made that of one process with as many
+  devices (brax draws it per process), so a run does not depend on how its devices are spread.
+* `mjx_local_device`: MJX's `put_model` places the model on jax.devices()[0], in a multi-process
+  run a device of process 0 only.
 * `brax_evaluator_compiles_once`: brax's evaluator compiled twice per run.
 * `brax_training_state`: brax PPO's whole training state (optimiser moments, step count, RNG,
   environment states) saved and restored at evaluations; brax's own checkpoints keep only the
@@ -96,16 +101,21 @@ def pmap_as_sharded_jit(fun, axis_name=None, *, in_axes=0, out_axes=0, donate_ar
     """`jax.pmap` rebuilt as `jit(vmap(fun, axis_name))` over a NamedSharding of the mapped axis.
 
     Same contract as pmap for what brax PPO uses: every argument and result carries a leading
-    axis of one entry per device, and collectives on `axis_name` (pmean, psum, pmin, pmax) reduce
-    across it; under vmap they are reductions over that axis, which XLA's SPMD partitioner turns
-    into cross-device all-reduces. The mapped axis is sharded over the first n local devices, n
-    being its length, as pmap does when `devices` is not given, over a mesh axis named PMAP_AXIS
+    axis of one entry per local device, and collectives on `axis_name` (pmean, psum, pmin, pmax)
+    reduce across it; under vmap they are reductions over that axis, which XLA's SPMD partitioner
+    turns into cross-device all-reduces. The mapped axis is sharded over the first n local devices,
+    n being its length, as pmap does when `devices` is not given, over a mesh axis named PMAP_AXIS
     (so `_device_put_replicated`'s arrays enter without a copy or a second compilation).
+
+    Several processes (jax.distributed): as jax's pmap, each process passes and gets back its own
+    devices' entries, and the collectives span every process's devices. The call assembles the
+    processes' local arrays into global ones over one mesh of the first n devices of every process
+    (`_global_mesh`; no copy: the same device buffers), runs the jit there (every process must
+    call it, as with pmap) and hands each process its own devices' entries back.
 
     Why: on jax 0.11.2 with CUDA (the GPU image this project measured on), XLA segfaults while
     compiling brax's `pmap(env.reset)` across two GPUs; jax's pmap is built on shard_map since
-    0.8, and the same reset compiled as one jit over a NamedSharding runs. Single-process only:
-    across hosts brax needs jax's own pmap (collectives that span processes).
+    0.8, and the same reset compiled as one jit over a NamedSharding runs.
     """
     unsupported = {k: v for k, v in kwargs.items() if v not in (None, (), 0)}
     unsupported.update({k: v for k, v in (("in_axes", in_axes), ("out_axes", out_axes)) if v != 0})
@@ -121,22 +131,61 @@ def pmap_as_sharded_jit(fun, axis_name=None, *, in_axes=0, out_axes=0, donate_ar
             devices = jax.local_devices()[:n]
             if len(devices) < n:
                 raise ValueError(f"mapped axis of size {n} but only {len(devices)} local devices")
-            sharding = NamedSharding(Mesh(np.array(devices), (PMAP_AXIS,)), PartitionSpec(PMAP_AXIS))
-            compiled[n] = jax.jit(
+            local = NamedSharding(Mesh(np.array(devices), (PMAP_AXIS,)), PartitionSpec(PMAP_AXIS))
+            sharding = local
+            if jax.process_count() > 1:
+                sharding = NamedSharding(_global_mesh(n), PartitionSpec(PMAP_AXIS))
+            jitted = jax.jit(
                 mapped, in_shardings=sharding, out_shardings=sharding, donate_argnums=donate_argnums
             )
-        return compiled[n](*args)
+            compiled[n] = (jitted, local, sharding)
+        jitted, local, sharding = compiled[n]
+        if sharding is local:
+            return jitted(*args)
+        to_global = lambda x: _process_local_to_global(x, local, sharding)  # noqa: E731
+        out = jitted(*jax.tree.map(to_global, args))
+        return jax.tree.map(lambda x: _global_to_process_local(x, local), out)
 
     return call
+
+
+def _global_mesh(n: int) -> Mesh:
+    """One 1-D mesh (axis PMAP_AXIS) over the first n devices of every process, process by process:
+    the global device order in which brax numbers its per-device environments and keys."""
+    by_process: dict[int, list] = {}
+    for d in sorted(jax.devices(), key=lambda d: (d.process_index, d.id)):
+        by_process.setdefault(d.process_index, []).append(d)
+    if any(len(ds) < n for ds in by_process.values()):
+        raise ValueError(f"mapped axis of size {n} but a process has fewer local devices")
+    return Mesh(np.array([d for p in sorted(by_process) for d in by_process[p][:n]]), (PMAP_AXIS,))
+
+
+def _process_local_to_global(x, local: NamedSharding, sharding: NamedSharding) -> jax.Array:
+    """This process's (n, ...) entries -> the global (n * processes, ...) array over `sharding`,
+    built from the same device buffers (a global array from an earlier call passes unchanged)."""
+    if isinstance(x, jax.Array) and x.sharding == sharding:
+        return x
+    if not (isinstance(x, jax.Array) and x.sharding == local):
+        x = jax.device_put(x, local)
+    shape = (x.shape[0] * jax.process_count(), *x.shape[1:])
+    return jax.make_array_from_single_device_arrays(shape, sharding, [s.data for s in x.addressable_shards])
+
+
+def _global_to_process_local(x: jax.Array, local: NamedSharding) -> jax.Array:
+    """A global array over the mesh -> this process's (n, ...) entries, the same device buffers,
+    placed as jax's pmap places its outputs."""
+    shards = [s.data for s in x.addressable_shards]
+    shape = (len(shards) * shards[0].shape[0], *x.shape[1:])
+    return jax.make_array_from_single_device_arrays(shape, local, shards)
 
 
 @contextlib.contextmanager
 def brax_multi_device(devices_to_use: int):
     """While active, brax's `jax.pmap` calls build `pmap_as_sharded_jit` instead, when brax will
-    use more than one local device and this is the only process (see pmap_as_sharded_jit). On one
-    device, or across hosts, jax's pmap is left in place. Yields True when replaced.
+    use more than one local device or several processes train (see pmap_as_sharded_jit). On one
+    device of one process jax's pmap is left in place. Yields True when replaced.
     """
-    if devices_to_use < 2 or jax.process_count() > 1:
+    if devices_to_use < 2 and jax.process_count() == 1:
         yield False
         return
     original = jax.pmap
@@ -145,6 +194,95 @@ def brax_multi_device(devices_to_use: int):
         yield True
     finally:
         jax.pmap = original
+
+
+def brax_reset_keys(seed: int, num_envs: int, devices: int) -> jax.Array:
+    """The keys brax 0.14.2's `ppo.train(seed=seed, num_envs=num_envs)` resets its environments
+    with in one process training on `devices` devices, (devices, num_envs // devices, 2) uint32."""
+    _, local_key = jax.random.split(jax.random.PRNGKey(seed))
+    _, key_env, _ = jax.random.split(jax.random.fold_in(local_key, 0), 3)
+    return jax.random.split(key_env, num_envs).reshape(devices, -1, 2)
+
+
+def brax_env_key(seed: int) -> jax.Array:
+    """The key brax 0.14.2's `ppo.train(seed=seed)` in one process draws the training
+    environments' domain randomization from (its `key_env`)."""
+    _, local_key = jax.random.split(jax.random.PRNGKey(seed))
+    return jax.random.split(jax.random.fold_in(local_key, 0), 3)[1]
+
+
+def process_rows(x, devices: int):
+    """This process's rows of a per-device array of every process's devices (leading axis
+    devices * process_count, process by process, as `_global_mesh` orders them)."""
+    p = jax.process_index()
+    return x[p * devices : (p + 1) * devices]
+
+
+@contextlib.contextmanager
+def brax_multi_process(seed: int, num_envs: int, devices: int):
+    """While active, brax PPO in several processes draws the randomness that one process with
+    `devices` * process_count devices draws: brax folds the process index into its environment
+    keys (resets, domain randomization), so the same seed and global batch would train on other
+    data depending on how the devices are spread over processes. Here every process resets its
+    environments with its rows of the single-process reset keys (`brax_reset_keys`) and
+    randomizes from the single-process key (`brax_env_key`); the training epochs' keys are
+    handed out by `brax_training_state` (BraxTrainingState.epoch_keys, see `process_epoch_keys`).
+    Evaluations run on process 0, whose keys are the single process's already. Nest inside
+    `brax_multi_device`. A no-op in one process.
+    """
+    if jax.process_count() == 1:
+        yield
+        return
+    from brax.training.agents.ppo import train as ppo_train
+
+    original_pmap, original_wrap = jax.pmap, ppo_train._maybe_wrap_env
+    total = devices * jax.process_count()
+    reset_keys = process_rows(brax_reset_keys(seed, num_envs, total), devices)
+
+    def pmap(fun, *args, **kwargs):
+        compiled = original_pmap(fun, *args, **kwargs)
+        if getattr(fun, "__name__", "") != "reset":
+            return compiled
+        return lambda keys: compiled(reset_keys if keys.shape == reset_keys.shape else keys)
+
+    def maybe_wrap_env(*args, **kwargs):
+        if len(args) >= 7:  # the training env, positional (the eval env passes its key by keyword)
+            args = (*args[:6], brax_env_key(seed), *args[7:])
+        return original_wrap(*args, **kwargs)
+
+    jax.pmap, ppo_train._maybe_wrap_env = pmap, maybe_wrap_env
+    try:
+        yield
+    finally:
+        jax.pmap, ppo_train._maybe_wrap_env = original_pmap, original_wrap
+
+
+@contextlib.contextmanager
+def mjx_local_device():
+    """While active, MJX's `put_model` without a `device` places the model on a device of this
+    process. mujoco 4.0.0's `mjx._src.io._resolve_device` picks `jax.devices()[0]`, which in a
+    multi-process run (jax.distributed) belongs to process 0: on the other processes the model's
+    arrays span a device they cannot address, and the first jit over them fails ("Closing over
+    jax.Array that spans non-addressable (non process local) devices"). A no-op in one process.
+    """
+    if jax.process_count() == 1:
+        yield
+        return
+    from mujoco.mjx._src import io
+
+    original = io._resolve_device
+
+    def resolve_device(impl):
+        device = original(impl)
+        if device.process_index == jax.process_index():
+            return device
+        return jax.local_devices(backend=device.platform)[0]
+
+    io._resolve_device = resolve_device
+    try:
+        yield
+    finally:
+        io._resolve_device = original
 
 
 @contextlib.contextmanager
@@ -189,6 +327,12 @@ def brax_epoch_keys(seed: int, epoch: int, devices: int, process_id: int = 0) ->
     return jax.random.split(epoch_key, devices)
 
 
+def process_epoch_keys(seed: int, epoch: int, devices: int) -> jax.Array:
+    """This process's keys of training epoch `epoch`, (devices, 2): its rows of the keys one
+    process with `devices` * process_count devices draws (see brax_multi_process)."""
+    return process_rows(brax_epoch_keys(seed, epoch, devices * jax.process_count()), devices)
+
+
 @dataclasses.dataclass
 class BraxTrainingState:
     """What `brax_training_state` saw and what it restores (see there).
@@ -226,7 +370,7 @@ class BraxTrainingState:
                     training_state = _replace_leaves(training_state, self.restore_training_state, True)
                 if self.restore_env_state is not None:
                     env_state = _replace_leaves(env_state, self.restore_env_state, False)
-            if self.first_epoch > 0:
+            if self.first_epoch > 0 or jax.process_count() > 1:
                 keys = self.epoch_keys(self.first_epoch + self.epochs_done)
             self.keys_seen.append(np.asarray(keys))
             out = epoch_fn(training_state, env_state, keys)
@@ -242,20 +386,26 @@ def _replace_leaves(tree, leaves, replicated: bool):
 
     replicated: each new leaf is one device's copy, stacked over the leading device axis;
     otherwise it holds every device's part and is reshaped to the replaced leaf's shape (so a run
-    resumed on another number of devices splits the same environments differently).
+    resumed on another number of devices splits the same environments differently); in several
+    processes, every process's devices' part, of which this process takes its own.
     """
+    processes = jax.process_count()
     old, treedef = jax.tree.flatten(tree)
     if len(old) != len(leaves):
         raise ValueError(f"saved state has {len(leaves)} arrays, this run's has {len(old)}")
     new = []
     for i, (o, n) in enumerate(zip(old, leaves, strict=True)):
         n = np.asarray(n)
-        shape_ok = n.shape == o.shape[1:] if replicated else n.size == o.size
+        shape_ok = n.shape == o.shape[1:] if replicated else n.size == o.size * processes
         if not shape_ok or n.dtype != o.dtype:
+            whole = list(o.shape) if replicated or processes == 1 else [processes, *o.shape]
             raise ValueError(
-                f"saved state array {i} is {n.dtype}{list(n.shape)}, this run's is {o.dtype}{list(o.shape)}"
+                f"saved state array {i} is {n.dtype}{list(n.shape)}, this run's is {o.dtype}{whole}"
             )
-        n = np.broadcast_to(n, o.shape) if replicated else n.reshape(o.shape)
+        if replicated:
+            n = np.broadcast_to(n, o.shape)
+        else:
+            n = n.reshape((processes, *o.shape))[jax.process_index()]
         new.append(jax.device_put(n, o.sharding))
     return jax.tree.unflatten(treedef, new)
 

@@ -7,6 +7,8 @@
     quadson-train --task QuadsonGaitBound --run-dir results/gaits/bound     # a gait's recipe
     quadson-train --task CaramelCommandRough                  # seed 003's robot
     quadson-train --list-tasks                                # the registered tasks and their flags
+    quadson-train --coordinator host0:1234 --num-processes 2 --process-id 0   # on host0 (1 on host1)
+    srun quadson-train --distributed                          # SLURM / Open MPI: one task per host
 
 (`python train/ppo_mjx.py ...` runs the same command.) A task (quadson_mjx.tasks) names a robot, an
 env preset, a terrain and a gait recipe; the flags --robot, --env-preset seed|command|robust (seed
@@ -75,6 +77,25 @@ def parse(argv):
         "--coordinator", default=None, help="several hosts: HOST:PORT of process 0 (jax.distributed)"
     )
     p.add_argument(
+        "--distributed",
+        action="store_true",
+        help="several hosts: take the coordinator, process count and id from the cluster (SLURM, Open MPI)",
+    )
+    p.add_argument(
+        "--init-timeout",
+        type=int,
+        default=300,
+        metavar="S",
+        help="several hosts: seconds to wait for every process to join (default: %(default)s)",
+    )
+    p.add_argument(
+        "--heartbeat-timeout",
+        type=int,
+        default=100,
+        metavar="S",
+        help="several hosts: seconds after which a silent process counts as dead (default: %(default)s)",
+    )
+    p.add_argument(
         "--compile-cache",
         default=os.environ.get("JAX_COMPILATION_CACHE_DIR", "~/.cache/quadson_mjx/xla"),
         metavar="DIR",
@@ -116,6 +137,91 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def start_distributed(args) -> None:
+    """Joins a multi-process run (jax.distributed) when the flags ask for one: --coordinator with
+    --num-processes and --process-id, or --distributed (the cluster's environment: SLURM, Open MPI,
+    as jax.distributed detects them). CPU devices talk through gloo (jax's default on the CPU has no
+    collectives across processes)."""
+    if args.coordinator is None and not args.distributed:
+        if args.num_processes != 1 or args.process_id != 0:
+            raise UsageError("--num-processes and --process-id need --coordinator HOST:PORT")
+        return
+    if args.coordinator is not None and args.distributed:
+        raise UsageError("--distributed takes the coordinator from the cluster: remove --coordinator")
+    if args.coordinator is not None and not 0 <= args.process_id < args.num_processes:
+        raise UsageError(f"--process-id {args.process_id} is not in 0..{args.num_processes - 1}")
+    for flag, seconds in (
+        ("--init-timeout", args.init_timeout),
+        ("--heartbeat-timeout", args.heartbeat_timeout),
+    ):
+        if seconds < 1:
+            raise UsageError(f"{flag} must be at least 1 s, got {seconds}")
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    given = {}
+    if args.coordinator is not None:
+        given = dict(
+            coordinator_address=args.coordinator, num_processes=args.num_processes, process_id=args.process_id
+        )
+    try:
+        jax.distributed.initialize(
+            **given,
+            initialization_timeout=args.init_timeout,
+            heartbeat_timeout_seconds=args.heartbeat_timeout,
+        )
+    except (ValueError, RuntimeError, jax.errors.JaxRuntimeError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise UsageError(f"cannot join the multi-process run: {first}") from None
+    fold_runtime_fatal_errors(f"process {jax.process_index()} of {jax.process_count()}")
+
+
+# Run as a child process that reads this process's stderr (see fold_runtime_fatal_errors).
+_FOLD = r"""
+import re, signal, sys
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # it ends when the trainer's stderr closes
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+fatal = re.compile(rb"^F\d{4} [\d:.]+ +\d+ [^\]]+\] (.*)")
+out, folded = sys.stderr.buffer, False
+for line in sys.stdin.buffer:
+    match = None if folded else fatal.match(line)
+    if match:
+        text = match.group(1).decode(errors="replace")
+        why, _, status = text.partition("absl::Status: ")
+        why = why.split(" Disable Python buffering")[0].strip()
+        line = f"error: {sys.argv[1]} stopped: {why} ({status.strip()})\n".encode()
+        folded = True  # the rest is the runtime's stack trace
+    elif folded:
+        continue
+    out.write(line)
+    out.flush()
+"""
+
+
+def fold_runtime_fatal_errors(who: str) -> None:
+    """Passes this process's stderr through a child process that folds a fatal report of the
+    distributed runtime into one line. When another process of the run dies, jax's coordination
+    client ends this one at once from C++ (abort, exit status 134) with a log line and a stack
+    trace: that line becomes `error: process I of N stopped: ...another task died...`, the stack
+    trace is dropped, everything else passes unchanged."""
+    import subprocess
+
+    read, write = os.pipe()
+    subprocess.Popen([sys.executable, "-c", _FOLD, who], stdin=read, close_fds=True)
+    os.close(read)
+    sys.stderr.flush()
+    os.dup2(write, 2)
+    os.close(write)
+
+
+def lost_peer(e: BaseException) -> str:
+    """One line for a collective that failed in a multi-process run (another process died)."""
+    first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    return (
+        f"process {jax.process_index()} of {jax.process_count()}: a collective across the processes "
+        f"failed, another process has likely stopped ({first[:300]}); resume from process 0's run "
+        "directory with --resume"
+    )
+
+
 @one_line_errors
 def main(argv=None) -> int:
     try:
@@ -136,8 +242,8 @@ def _main(argv) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     if not args.no_compile_cache:
         training.enable_compilation_cache(args.compile_cache)
-    if args.coordinator:  # one process per host; brax trains on every process's local devices
-        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+    start_distributed(args)
+    primary = jax.process_index() == 0  # the process that writes the run directory
     if args.resume:
         # what would change the configs: the saved ones rule, so each is refused rather than ignored
         options = [
@@ -162,7 +268,7 @@ def _main(argv) -> int:
             # the checks train() makes, answered as a usage error
             env_cfg, ppo_cfg = training.load_run_config(run_dir)
             check_backend(env_cfg)
-            holder = training.lock_holder(run_dir)
+            holder = training.lock_holder(run_dir) if primary else None
             if holder is not None:
                 raise UsageError(f"run directory {run_dir} is in use by process {holder or '(starting)'}")
             training.resume_point(run_dir, ppo_cfg)
@@ -191,16 +297,26 @@ def _main(argv) -> int:
             training.check_ppo_config(ppo_cfg)
             check_backend(env_cfg)
             run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
-            training.check_new_run_dir(run_dir)
+            if primary:
+                training.check_new_run_dir(run_dir)
         except (ValueError, FileExistsError) as e:
             raise UsageError(str(e)) from None
     print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
+    if jax.process_count() > 1:
+        print(
+            f"process {jax.process_index()} of {jax.process_count()}, {jax.local_device_count()} local devices"
+            + ("" if primary else ": process 0 evaluates and writes the run directory")
+        )
     t0 = time.monotonic()
     try:
         _, _, metrics = training.train(env_cfg, ppo_cfg, run_dir, resume=bool(args.resume))
     except (ValueError, FileExistsError, FileNotFoundError) as e:
         # a damaged checkpoint or state file met on resume, a directory taken in the meantime
         raise UsageError(str(e)) from None
+    except jax.errors.JaxRuntimeError as e:
+        if jax.process_count() == 1:
+            raise
+        raise UsageError(lost_peer(e)) from None
     except KeyboardInterrupt:
         print(f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable.")
         if (run_dir / "config.json").exists():
@@ -213,6 +329,8 @@ def _main(argv) -> int:
             print("Nothing was saved yet: run the same command again.")
         return 130
     print(f"\ndone in {time.monotonic() - t0:.0f} s")
+    if not primary:
+        return 0
     for key in ("eval/episode_reward", "eval/mean_forward_speed", "eval/avg_episode_length"):
         if key in metrics:
             print(f"  {key}: {metrics[key]:.3f}")

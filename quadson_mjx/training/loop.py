@@ -18,6 +18,8 @@ with its readable contents. SIGINT and SIGTERM stop a run at the next safe point
 
 Several local GPUs: brax splits environments and batches over them; `compat.brax_multi_device`
 compiles brax's per-device functions as one sharded jit (ppo.multi_device, ppo.max_devices).
+Several processes (jax.distributed): the same jit over every process's devices; process 0 alone
+evaluates and writes the run directory (lock, configs, log, checkpoints); the others write nothing.
 """
 
 from __future__ import annotations
@@ -93,6 +95,13 @@ def train(
     parameter that becomes non-finite stops the run at that evaluation with TrainingDiverged,
     before its checkpoint is written (checkpoints/latest keeps naming the last finite one); too many
     environments for the memory raise OutOfMemory. Both are UsageErrors: one line, exit status 2.
+
+    Several processes (jax.distributed initialized; every process calls `train` with the same
+    configs and run_dir): they train as one process with all their devices would (same keys,
+    compat.brax_multi_process). Process 0 alone holds the lock and writes config.json, the log and
+    the checkpoints; the others write nothing (on resume they read the run directory, so it must
+    be on a filesystem every process sees). A stop on a signal saves no environments' states
+    there (they are spread over the processes): the resume restarts them from the initial states.
     """
     stop = _Stop()
     with stop.installed(), contextlib.ExitStack() as held:
@@ -129,6 +138,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     from quadson_mjx.wrappers import wrap_for_training
 
     compat.patch_brax()
+    primary = jax.process_index() == 0  # the process that writes the run directory
     start_step, ckpt = 0, None
     live = {"log": None, "step": 0}  # what the second signal's emergency exit closes
     log_lock = threading.Lock()
@@ -147,8 +157,9 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     stop.emergency = emergency
     if resume:
         env_cfg, ppo_cfg = load_run_config(run_dir)
-        check_writable_dir(run_dir)
-        held.enter_context(run_dir_lock(run_dir))
+        if primary:
+            check_writable_dir(run_dir)
+            held.enter_context(run_dir_lock(run_dir))
         notes: list[str] = []
         start_step, ckpt = resume_point(run_dir, ppo_cfg, notes)
         for note in notes:
@@ -162,11 +173,12 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     check_ppo_config(ppo_cfg)
     guards.check_backend(env_cfg)
     created = False
-    if not resume:
+    if not resume and primary:
         created = _claim_new_run_dir(run_dir, held)
     try:
-        env = LocomotionEnv(env_cfg)
-        eval_env = LocomotionEnv(env_cfg)
+        with compat.mjx_local_device():
+            env = LocomotionEnv(env_cfg)
+            eval_env = LocomotionEnv(env_cfg)
         guards.check_memory(env, ppo_cfg.num_envs, local_devices_to_use(ppo_cfg))
     except BaseException:
         if created:
@@ -190,19 +202,25 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
                 restored += "; the environments restart from the run's initial states"
         print(f"resume from step {start_step:,}: restoring {restored}", file=stream)
     devices = local_devices_to_use(ppo_cfg)
-    state.epoch_keys = lambda epoch: compat.brax_epoch_keys(ppo_cfg.seed, epoch, devices, jax.process_index())
+    if jax.process_count() > 1:  # every process its rows of the single-process run's keys
+        state.epoch_keys = lambda epoch: compat.process_epoch_keys(ppo_cfg.seed, epoch, devices)
+    else:
+        state.epoch_keys = lambda epoch: compat.brax_epoch_keys(ppo_cfg.seed, epoch, devices)
     vers = versions()
-    write_text_atomic(
-        run_dir / "config.json",
-        json.dumps(
-            {"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": vers},
-            indent=2,
-        ),
-    )
+    if primary:
+        write_text_atomic(
+            run_dir / "config.json",
+            json.dumps(
+                {"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": vers},
+                indent=2,
+            ),
+        )
 
     log_path = run_dir / "train.mcap"
     old, kept, contents = [], None, None
-    if resume and log_path.exists():
+    if not primary:
+        log = _NoLog()
+    elif resume and log_path.exists():
         log, kept, old, contents = _reopen_log(run_dir, log_path, stream)
     else:
         log = McapLog(log_path, profile="quadson_mjx.train")
@@ -279,6 +297,8 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         return f"step {saved['step']:,}" if saved["step"] is not None else "none yet"
 
     def policy_params_fn(step, make_policy, params):
+        if not primary:  # brax calls it at step 0 in every process
+            return
         step = global_step(step)
         if state.latest is not None:  # after an epoch: the whole training state too
             leaves = state.training_state_leaves()  # params, normaliser, Adam's moments (gradients)
@@ -308,6 +328,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     try:
         with (
             multi_device,
+            compat.brax_multi_process(ppo_cfg.seed, ppo_cfg.num_envs, devices),
             compat.brax_evaluator_compiles_once(),
             compat.brax_training_state(state, eval_offset=first_epoch if ppo_cfg.num_evals > 1 else 0),
             compilations,
@@ -345,7 +366,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             )
     except KeyboardInterrupt as e:
         event = {"event": "interrupted", "step": saved["step"] if saved["step"] is not None else start_step}
-        if state.latest is not None and saved["epochs"] == state.epochs_done:
+        if state.latest is not None and saved["epochs"] == state.epochs_done and jax.process_count() == 1:
             # stopped between epochs: the environments' states make the resume exact
             _save_npz(env_state_path(run_dir, saved["step"]), state.env_state_leaves(), saved["step"])
             event["env_state"] = env_state_path(run_dir, saved["step"]).name
@@ -372,6 +393,15 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         log.close()
         live["log"] = None
     return make_policy, params, last_metrics
+
+
+class _NoLog:
+    """The log of a process other than 0: it writes nothing (process 0's log has the run)."""
+
+    def log(self, *args, **kwargs) -> None:
+        pass
+
+    metadata = attachment = close = log
 
 
 def _nest(record: dict) -> dict:
