@@ -26,7 +26,8 @@ the observation and action specifications ("obs_spec", "action_spec", JSON) and 
 description ("obs_layout") are in the model's metadata_props. ONNX Runtime runs it
 (quadson_mjx.deploy does, on the robot).
 
-Only numpy is imported at module level: copy this file and the .npz onto the robot.
+Only numpy is imported at module level. The .npz's inference is quadson_mjx.policy_file (numpy only):
+copy that file and the .npz onto the robot, or run the .onnx with quadson_mjx.deploy.
 """
 
 from __future__ import annotations

@@ -86,11 +86,14 @@ def test_numpy_inference_matches_the_jax_policy(run_dir, tmp_path):
 
 
 def test_inference_module_imports_only_numpy(tmp_path):
-    # Load export.py by path in a fresh interpreter (as on the robot) and list the heavy modules present.
-    path = Path(export.__file__)
+    # Load policy_file.py (the .npz's numpy inference) by path in a fresh interpreter, as on the
+    # robot, and list the heavy modules present.
+    from quadson_mjx import policy_file
+
+    path = Path(policy_file.__file__)
     code = (
         "import importlib.util, sys;"
-        f"spec = importlib.util.spec_from_file_location('export', {str(path)!r});"
+        f"spec = importlib.util.spec_from_file_location('policy_file', {str(path)!r});"
         "m = importlib.util.module_from_spec(spec); spec.loader.exec_module(m);"
         "print(sorted(n for n in ('jax', 'brax', 'flax', 'mujoco', 'quadson_mjx') if n in sys.modules))"
     )
