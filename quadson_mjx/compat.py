@@ -122,7 +122,7 @@ def pmap_as_sharded_jit(fun, axis_name=None, *, in_axes=0, out_axes=0, donate_ar
     if unsupported:
         raise NotImplementedError(f"pmap_as_sharded_jit does not support {sorted(unsupported)}")
     mapped = jax.vmap(fun, in_axes=in_axes, out_axes=out_axes, axis_name=axis_name)
-    compiled = {}
+    compiled, executables = {}, {}
 
     def call(*args):
         leaves = jax.tree.leaves(args)
@@ -143,10 +143,35 @@ def pmap_as_sharded_jit(fun, axis_name=None, *, in_axes=0, out_axes=0, donate_ar
         if sharding is local:
             return jitted(*args)
         to_global = lambda x: _process_local_to_global(x, local, sharding)  # noqa: E731
-        out = jitted(*jax.tree.map(to_global, args))
+        args = jax.tree.map(to_global, args)
+        # compiled ahead, then run once every process has compiled (see processes_meet)
+        key = (n, jax.tree.structure(args), tuple((x.shape, x.dtype) for x in jax.tree.leaves(args)))
+        if key not in executables:
+            executables[key] = jitted.lower(*args).compile()
+        processes_meet()
+        out = executables[key](*args)
         return jax.tree.map(lambda x: _global_to_process_local(x, local), out)
 
     return call
+
+
+# How long a process waits at processes_meet for the others (process 0 evaluates while the others
+# wait; a dead process ends the run sooner, through jax.distributed's heartbeats).
+MEET_TIMEOUT_S = 3600
+_meetings = [0]
+
+
+def processes_meet() -> None:
+    """Waits until every process of a multi-process run has got here (a barrier of jax.distributed's
+    coordination service, not a collective). Called before each computation across processes:
+    on the CPU, gloo gives up on a collective whose peers arrive more than about 30 s apart
+    ("Gloo context initialization failed: Connect timeout", measured while process 0 compiled its
+    first evaluation, which the others do not run, and when the processes' compilations of the
+    training epoch took 17 s and 36 s, on a loaded 2-core machine)."""
+    from jax._src import distributed
+
+    _meetings[0] += 1
+    distributed.global_state.client.wait_at_barrier(f"quadson_mjx_meet_{_meetings[0]}", MEET_TIMEOUT_S * 1000)
 
 
 def _global_mesh(n: int) -> Mesh:
