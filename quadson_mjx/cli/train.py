@@ -170,7 +170,8 @@ def start_distributed(args) -> None:
         )
     except (ValueError, RuntimeError, jax.errors.JaxRuntimeError) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise UsageError(f"cannot join the multi-process run: {first}") from None
+        where = "--distributed (SLURM, Open MPI)" if args.distributed else f"--coordinator {args.coordinator}"
+        raise UsageError(f"cannot join the multi-process run through {where}: {first}") from None
     fold_runtime_fatal_errors(f"process {jax.process_index()} of {jax.process_count()}")
 
 
