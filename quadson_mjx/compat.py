@@ -20,6 +20,7 @@ import contextlib
 import dataclasses
 import importlib.metadata
 import re
+import time
 from collections.abc import Callable
 
 import jax
@@ -159,19 +160,55 @@ def pmap_as_sharded_jit(fun, axis_name=None, *, in_axes=0, out_axes=0, donate_ar
 # wait; a dead process ends the run sooner, through jax.distributed's heartbeats).
 MEET_TIMEOUT_S = 3600
 _meetings = [0]
+_KEYS = "quadson_mjx"
+
+
+class ProcessesStopped(KeyboardInterrupt):
+    """Another process of a multi-process run stopped (a signal, an error): this one stops too, at
+    the meeting where it learns of it (see processes_meet), as on a signal of its own."""
 
 
 def processes_meet() -> None:
-    """Waits until every process of a multi-process run has got here (a barrier of jax.distributed's
-    coordination service, not a collective). Called before each computation across processes:
+    """Waits until every process of a multi-process run has got here, through the key-value store
+    of jax.distributed's coordination service (not a collective); raises ProcessesStopped when
+    another process has stopped instead (processes_stop). Called before each computation across
+    processes, so that none waits in a collective for a process that will not come:
     on the CPU, gloo gives up on a collective whose peers arrive more than about 30 s apart
     ("Gloo context initialization failed: Connect timeout", measured while process 0 compiled its
     first evaluation, which the others do not run, and when the processes' compilations of the
-    training epoch took 17 s and 36 s, on a loaded 2-core machine)."""
+    training epoch took 17 s and 36 s, on a loaded 2-core machine); and a process stopped on a
+    signal at its safe point left the others in the next collective until jax.distributed's
+    shutdown barrier gave up (300 s)."""
     from jax._src import distributed
 
+    client = distributed.global_state.client
     _meetings[0] += 1
-    distributed.global_state.client.wait_at_barrier(f"quadson_mjx_meet_{_meetings[0]}", MEET_TIMEOUT_S * 1000)
+    here = f"{_KEYS}/meet/{_meetings[0]}"
+    client.key_value_set(f"{here}/{jax.process_index()}", "1")
+    deadline = time.monotonic() + MEET_TIMEOUT_S
+    while True:
+        stopped = client.key_value_dir_get(f"{_KEYS}/stop")
+        if stopped:
+            key, why = stopped[0]
+            raise ProcessesStopped(
+                f"process {key.rsplit('/', 1)[-1]} of {jax.process_count()} stopped: {why}"
+            )
+        if len(client.key_value_dir_get(here)) == jax.process_count():
+            return
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"the other processes did not arrive within {MEET_TIMEOUT_S} s")
+        time.sleep(0.005)
+
+
+def processes_stop(reason: str) -> None:
+    """Tells the other processes of a multi-process run that this one stops (they stop at their
+    next processes_meet). A no-op in one process or once the coordination service is gone."""
+    if jax.process_count() == 1:
+        return
+    from jax._src import distributed
+
+    with contextlib.suppress(Exception):
+        distributed.global_state.client.key_value_set(f"{_KEYS}/stop/{jax.process_index()}", reason[:300])
 
 
 def _global_mesh(n: int) -> Mesh:

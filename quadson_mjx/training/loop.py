@@ -365,6 +365,8 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
                 deterministic_eval=ppo_cfg.deterministic_eval,
             )
     except KeyboardInterrupt as e:
+        if not isinstance(e, compat.ProcessesStopped):  # the others stop at their next meeting
+            compat.processes_stop(str(e) or type(e).__name__)
         event = {"event": "interrupted", "step": saved["step"] if saved["step"] is not None else start_step}
         if state.latest is not None and saved["epochs"] == state.epochs_done and jax.process_count() == 1:
             # stopped between epochs: the environments' states make the resume exact
@@ -377,6 +379,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             live["log"] = None
         raise
     except BaseException as e:  # any other failure: the log still gets its summary and says why
+        compat.processes_stop(f"{type(e).__name__}: {e}")
         event = f"failed: {type(e).__name__}: {e}"[:500]
         with log_lock:
             log.log("/train/log", {"event": event, "step": saved["step"] or start_step}, time.time_ns())
