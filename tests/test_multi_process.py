@@ -190,3 +190,29 @@ def test_killed_process_stops_the_other_with_one_line(tmp_path, victim):
     assert last.startswith(f"error: process {1 - victim} of 2 stopped"), err[-2000:]
     assert "another task died" in last, err[-2000:]
     assert time.monotonic() - t0 < 60
+
+
+def test_regression_signal_to_one_process_stops_both(tmp_path):
+    # A SIGTERM to process 1 alone (a scheduler's preemption of one host) used to leave process 0
+    # waiting in its next collective until jax.distributed's shutdown barrier gave up (300 s, then
+    # both aborted). Now process 1 stops at its next safe point and tells the others, which stop at
+    # their next meeting before a computation across processes: both end as on Ctrl-C (status 130).
+    port = _free_port()
+    logs = tmp_path / "logs"
+    procs = [
+        _start(
+            [*RUN, "--run-dir", str(tmp_path / "run"), *_distributed(port, i)], tmp_path / f"p{i}", 2, logs
+        )
+        for i in (0, 1)
+    ]
+    deadline = time.monotonic() + 120
+    while "process 1 of 2" not in (logs / "p1.out").read_text():  # both processes have joined
+        assert time.monotonic() < deadline and procs[1].poll() is None, "process 1 did not start"
+        time.sleep(0.2)
+    procs[1].send_signal(signal.SIGTERM)
+    results = [_finish(proc, logs, f"p{i}", timeout=120) for i, proc in enumerate(procs)]
+    for i, (rc, out, err) in enumerate(results):
+        assert rc == 130, f"p{i}: exit {rc}\n{out[-2000:]}\n{err[-2000:]}"
+        assert "interrupted" in out and "Terminating process" not in err, (
+            f"p{i}:\n{out[-2000:]}\n{err[-2000:]}"
+        )
