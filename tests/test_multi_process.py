@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow  # about 80 s on 2 cores: three training processes, then four short ones
 
 # 2 training epochs of one training step (2 Adam updates) each, evaluations at 0, 64 and 128
 # steps; 4 environments, one per device in both layouts.
