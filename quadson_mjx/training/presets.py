@@ -49,8 +49,8 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
         "init_noise_std": 0.3,
         # Local GPUs to train on (0: all). Several: brax splits the envs and the batch evenly and
         # all-reduces gradients. "sharded_jit" compiles brax's per-device functions as one jit over
-        # the devices (compat.pmap_as_sharded_jit; jax's own pmap crashes XLA on jax 0.11.2 with
-        # two GPUs); "pmap" keeps jax's pmap (and is always used across several hosts).
+        # the devices, of every process in a multi-process run (compat.pmap_as_sharded_jit; jax's
+        # own pmap crashes XLA on jax 0.11.2 with two GPUs); "pmap" keeps jax's pmap.
         "max_devices": 0,
         "multi_device": "sharded_jit",
         # Evaluations (the logged eval/* metrics) run the policy's mean action, as deployment does;
