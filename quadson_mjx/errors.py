@@ -86,15 +86,7 @@ def atomic_write(path, mode: str = "wb"):
     fsynced and renamed over `path`; on an exception it is removed and `path` is untouched. Raises
     UsageError before writing anything when the folder is missing or not writable."""
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if folder.exists() and not folder.is_dir():
-        raise UsageError(f"{path}: {folder} is a file, not a folder")
-    if not folder.is_dir():
-        raise UsageError(f"{path}: the folder {folder} does not exist; create it first")
-    if path.is_dir():
-        raise UsageError(f"{path} is a folder, a file name is needed")
-    if not os.access(folder, os.W_OK):
-        raise UsageError(f"{path}: the folder {folder} is not writable; choose a writable path")
+    folder = _check_folder(path, "")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
     with contextlib.suppress(OSError):  # mkstemp makes 0600: give the mode a plain open would
         os.fchmod(fd, _new_file_mode(path))
@@ -136,16 +128,36 @@ def check_writable(path, what: str = "output") -> Path:
     """Raise UsageError now (before a long computation) when `path` could not be written later:
     missing or read-only folder, or a folder where a file is needed. -> Path(path)."""
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
-        raise UsageError(f"{what} {path} is a folder, a file name is needed")
-    if folder.exists() and not folder.is_dir():
-        raise UsageError(f"{what} {path}: {folder} is a file, not a folder")
-    if not folder.is_dir():
-        raise UsageError(f"{what} {path}: the folder {folder} does not exist; create it first")
-    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+    _check_folder(path, f"{what} ")
+    if path.exists() and not os.access(path, os.W_OK):
         raise UsageError(f"{what} {path}: not writable (read-only?); choose a writable path")
     return path
+
+
+def _check_folder(path: Path, prefix: str) -> Path:
+    """Raise UsageError (its message starting with prefix + path) when a file could not be created
+    at `path`: a folder there, or its folder missing, a file, or not writable. -> the folder."""
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise UsageError(f"{prefix}{path} is a folder, a file name is needed")
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{prefix}{path}: {folder} is a file, not a folder")
+    if not folder.is_dir():
+        raise UsageError(f"{prefix}{path}: the folder {folder} does not exist; create it first")
+    if not os.access(folder, os.W_OK):
+        raise UsageError(f"{prefix}{path}: not writable (read-only?); choose a writable path")
+    return folder
+
+
+def make_folder(folder, what: str) -> Path:
+    """Create `folder` and its parents; UsageError naming `what` (the argument) where it cannot be
+    made. -> Path(folder)."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"{what} {folder}: cannot create it ({e.strerror or one_line(e)})") from None
+    return folder
 
 
 def check_readable(path, what: str = "input") -> Path:

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from loop_vs_env import assert_loop_targets_match_env
 
 from quadson_mjx import deploy, swing
 from quadson_mjx.config import to_json
@@ -106,28 +107,7 @@ def test_loop_motor_targets_equal_the_env_step_start_ramp_included(gait_action):
     env = LocomotionEnv(cfg)
     policy = _FixedPolicy(cfg, env.observation_size, env.action_size)
     loop = deploy.DeployLoop(policy)
-    actuator = np.asarray(env._actuator_of_motor)
-    # after the jitted float64 references above, this float32 jit failed to lower on jax 0.10.2
-    # (an f32 x f64 multiply: a cached float64 constant); it passes alone and with clean caches
-    jax.clear_caches()
-    motor_targets = jax.jit(env._motor_targets)
-    rng = np.random.default_rng(2)
-    command = np.array([0.25, -0.05, 0.3])
-    # clock states in and after the 0.5 s start ramp, actions inside and beyond [-1, 1]
-    for progress, t in [(0.0, 0.0), (0.1, 0.08), (0.35, 0.3), (0.62, 0.48), (0.9, 2.0), (0.99, 7.5)]:
-        action = rng.uniform(-1.3, 1.3, env.action_size).astype(np.float32)
-        info = {
-            "gait_progress": jnp.float32(progress),
-            "episode_time": jnp.float32(t),
-            "command": jnp.asarray(command, jnp.float32),
-        }
-        ctrl, n_invalid, cycle_s, feet = motor_targets(info, jnp.clip(jnp.asarray(action), -1.0, 1.0))
-        loop.progress, loop.time_s = progress, t
-        motor, valid, got_feet, got_cycle = loop.targets(action, command)
-        np.testing.assert_allclose(got_feet, feet, rtol=0, atol=2e-6)  # float32 env, float64 loop
-        np.testing.assert_allclose(motor, np.asarray(ctrl)[actuator], rtol=0, atol=2e-5)
-        assert int(np.sum(~valid)) == int(n_invalid)
-        assert got_cycle == pytest.approx(float(cycle_s), rel=1e-6)
+    assert_loop_targets_match_env(env, loop, np.array([0.25, -0.05, 0.3]))
 
 
 def test_loop_rejects_a_policy_of_another_shape():

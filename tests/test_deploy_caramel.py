@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from loop_vs_env import assert_loop_targets_match_env
 
 from quadson_mjx import deploy
 from quadson_mjx.config import to_json
@@ -94,21 +95,4 @@ def test_caramel_loop_motor_targets_equal_the_env_step_start_ramp_included():
     want = env_gait(cfg)
     for name, value in loop.config.gait._asdict().items():
         np.testing.assert_allclose(value, np.asarray(getattr(want, name)), rtol=1e-7, err_msg=name)
-    actuator = np.asarray(env.motor_actuators)
-    jax.clear_caches()
-    motor_targets = jax.jit(env._motor_targets)
-    rng = np.random.default_rng(2)
-    command = np.array([0.05, -0.01, 0.2])
-    for progress, t in [(0.0, 0.0), (0.1, 0.08), (0.35, 0.3), (0.62, 0.48), (0.9, 2.0), (0.99, 7.5)]:
-        action = rng.uniform(-1.3, 1.3, env.action_size).astype(np.float32)
-        info = {
-            "gait_progress": jnp.float32(progress),
-            "episode_time": jnp.float32(t),
-            "command": jnp.asarray(command, jnp.float32),
-        }
-        ctrl, n_invalid, _, feet = motor_targets(info, jnp.clip(jnp.asarray(action), -1.0, 1.0))
-        loop.progress, loop.time_s = progress, t
-        motor, valid, got_feet, _ = loop.targets(action, command)
-        np.testing.assert_allclose(got_feet, feet, rtol=0, atol=2e-6)  # float32 env, float64 loop
-        np.testing.assert_allclose(motor, np.asarray(ctrl)[actuator], rtol=0, atol=2e-5)
-        assert int(np.sum(~valid)) == int(n_invalid)
+    assert_loop_targets_match_env(env, loop, np.array([0.05, -0.01, 0.2]))

@@ -21,7 +21,6 @@ from pathlib import Path
 
 from quadson_mjx import errors
 from quadson_mjx import report as R
-from quadson_mjx.errors import UsageError
 
 
 def plot(trials, out_dir: Path) -> list[Path]:
@@ -75,12 +74,7 @@ def check_args(args) -> None:
 
 def make_out_dir(out_dir: Path) -> None:
     """Create --out-dir (and its parents); UsageError where it cannot be made or written."""
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UsageError(
-            f"--out-dir {out_dir}: cannot create it ({e.strerror or errors.one_line(e)})"
-        ) from None
+    errors.make_folder(out_dir, "--out-dir")
     errors.check_writable(out_dir / "report.md", "--out-dir")
 
 

@@ -183,12 +183,7 @@ def check_outputs(args) -> None:
     else:
         folder, what = None, None
     if folder is not None:
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UsageError(
-                f"{what} {folder}: cannot create it ({e.strerror or errors.one_line(e)})"
-            ) from None
+        errors.make_folder(folder, what)
     outputs = [("--out", p) for p in suite_outputs(args)] if args.suite else [("--out", Path(args.out))]
     outputs += [("--video", Path(args.video))] if args.video else []
     for flag, out in outputs:
