@@ -20,6 +20,10 @@ from array_api_compat import array_namespace
 # sensors an observation entry may come from: "estimator" is a state estimator the robot would need
 # (the project provides none), "simulator" what only a simulator knows (the critic's privileged view)
 SENSORS = ("imu", "encoders", "estimator", "clock", "command", "policy", "simulator")
+# where a policy whose observation has an "estimator" entry gets its base velocity outside training
+# (policy_eval in MJX, sim2sim in MuJoCo C): the simulator's true value, zeros (no estimator), or
+# the commanded vx, vy as the estimate
+VELOCITY_SOURCES = ("true", "zero", "command")
 # what the robot measures or knows by itself: an actor whose spec uses only these runs on the robot
 ROBOT_SENSORS = ("imu", "encoders", "clock", "command", "policy")
 

@@ -24,9 +24,9 @@ from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.obs_spec import VELOCITY_SOURCES
 from quadson_mjx.training import load_policy
 
-VELOCITY_SOURCES = ("true", "zero", "command")
 SETTLE_S = 1.0  # the first second of every episode is left out of the RMS
 
 

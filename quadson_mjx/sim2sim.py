@@ -30,8 +30,9 @@ from quadson_mjx import deploy, obs_spec
 from quadson_mjx import sim2sim_plant as P
 from quadson_mjx.quat import quat_mul, quat_to_rpy
 from quadson_mjx.robots import get_robot
+from quadson_mjx.sim2sim_table import GROUP_KEYS, format_table, rms, summarize  # noqa: F401 (the module's API)
 
-VELOCITY_SOURCES = ("true", "zero", "command")
+VELOCITY_SOURCES = obs_spec.VELOCITY_SOURCES
 TERRAINS = P.TERRAINS
 WARMUP_S = 1.0  # tracking errors count after this much of a run [s]
 # The command sweep (vx [m/s], vy [m/s], yaw rate [rad/s]): standing, forward and back, sideways,
@@ -239,20 +240,13 @@ def run_episode(
         "sim_s": (k + 1) * dt,
         "tracked_steps": int(len(e)),
         "sq_err_sum": sq.tolist(),  # for pooling runs
-        "vx_rms": _rms(sq[0], len(e)),
-        "vy_rms": _rms(sq[1], len(e)),
-        "yaw_rate_rms": _rms(sq[2], len(e)),
+        "vx_rms": rms(sq[0], len(e)),
+        "vy_rms": rms(sq[1], len(e)),
+        "yaw_rate_rms": rms(sq[2], len(e)),
         "invalid_ik_steps": invalid,
         "fault_steps": faults,
         "push_count": plant.pushes,
     }
-
-
-def _rms(sq_sum: float, n: int) -> float | None:
-    return math.sqrt(sq_sum / n) if n else None
-
-
-# --- many runs ------------------------------------------------------------------------------------------
 
 
 def run_one(job: dict) -> dict:
@@ -371,62 +365,3 @@ def run_suite(policies, workers: int = 1, progress=None, **kw) -> list[dict]:
             if progress:
                 progress(len(rows), len(jobs), row)
     return rows
-
-
-GROUP_KEYS = ("policy_name", "velocity_source", "terrain", "randomize", "pushes", "latency_s")
-
-
-def summarize(rows, by=GROUP_KEYS, split_step: bool = True) -> list[dict]:
-    """Pools runs per condition (and the step schedule apart from the sweep): runs, falls, fall
-    rate, RMS over every tracked step of the pooled runs, invalid-IK and fault steps."""
-    groups: dict[tuple, list] = {}
-    for r in rows:
-        key = tuple(r[k] for k in by) + (
-            (("step" if r["label"] == "step" else "sweep"),) if split_step else ()
-        )
-        groups.setdefault(key, []).append(r)
-    out = []
-    for key, rs in groups.items():
-        n = sum(r["tracked_steps"] for r in rs)
-        sq = np.sum([r["sq_err_sum"] for r in rs], axis=0)
-        out.append(
-            {
-                **dict(zip(by, key, strict=False)),
-                **({"commands": key[-1]} if split_step else {}),
-                "runs": len(rs),
-                "falls": sum(r["fell"] for r in rs),
-                "fall_rate": sum(r["fell"] for r in rs) / len(rs),
-                "off_field": sum(r["off_field"] for r in rs),
-                "vx_rms": _rms(sq[0], n),
-                "vy_rms": _rms(sq[1], n),
-                "yaw_rate_rms": _rms(sq[2], n),
-                "invalid_ik_steps": sum(r["invalid_ik_steps"] for r in rs),
-                "fault_steps": sum(r["fault_steps"] for r in rs),
-                "steps": sum(r["steps"] for r in rs),
-            }
-        )
-    return out
-
-
-def format_table(
-    summary,
-    columns=("policy_name", "velocity_source", "terrain", "commands", "randomize", "pushes", "latency_s"),
-) -> str:
-    """A plain-text table of summarize's rows."""
-    head = [*columns, "runs", "falls", "vx_rms", "vy_rms", "yaw_rms", "ik_inv"]
-    lines = [head]
-    for s in summary:
-        f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
-        lines.append(
-            [str(s.get(c, "")) for c in columns]
-            + [
-                str(s["runs"]),
-                f"{s['falls']} ({100 * s['fall_rate']:.0f}%)",
-                f(s["vx_rms"]),
-                f(s["vy_rms"]),
-                f(s["yaw_rate_rms"]),
-                str(s["invalid_ik_steps"]),
-            ]
-        )
-    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
-    return "\n".join("  ".join(x.ljust(w) for x, w in zip(line, widths, strict=True)) for line in lines)

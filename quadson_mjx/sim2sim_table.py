@@ -1,0 +1,72 @@
+"""The sim2sim runs pooled per condition, and their table (quadson_mjx.sim2sim's rows in, plain
+data and text out)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def rms(sq_sum: float, n: int) -> float | None:
+    """sqrt(sq_sum / n), None for no step."""
+    return math.sqrt(sq_sum / n) if n else None
+
+
+GROUP_KEYS = ("policy_name", "velocity_source", "terrain", "randomize", "pushes", "latency_s")
+
+
+def summarize(rows, by=GROUP_KEYS, split_step: bool = True) -> list[dict]:
+    """Pools runs per condition (and the step schedule apart from the sweep): runs, falls, fall
+    rate, RMS over every tracked step of the pooled runs, invalid-IK and fault steps."""
+    groups: dict[tuple, list] = {}
+    for r in rows:
+        key = tuple(r[k] for k in by) + (
+            (("step" if r["label"] == "step" else "sweep"),) if split_step else ()
+        )
+        groups.setdefault(key, []).append(r)
+    out = []
+    for key, rs in groups.items():
+        n = sum(r["tracked_steps"] for r in rs)
+        sq = np.sum([r["sq_err_sum"] for r in rs], axis=0)
+        out.append(
+            {
+                **dict(zip(by, key, strict=False)),
+                **({"commands": key[-1]} if split_step else {}),
+                "runs": len(rs),
+                "falls": sum(r["fell"] for r in rs),
+                "fall_rate": sum(r["fell"] for r in rs) / len(rs),
+                "off_field": sum(r["off_field"] for r in rs),
+                "vx_rms": rms(sq[0], n),
+                "vy_rms": rms(sq[1], n),
+                "yaw_rate_rms": rms(sq[2], n),
+                "invalid_ik_steps": sum(r["invalid_ik_steps"] for r in rs),
+                "fault_steps": sum(r["fault_steps"] for r in rs),
+                "steps": sum(r["steps"] for r in rs),
+            }
+        )
+    return out
+
+
+def format_table(
+    summary,
+    columns=("policy_name", "velocity_source", "terrain", "commands", "randomize", "pushes", "latency_s"),
+) -> str:
+    """A plain-text table of summarize's rows."""
+    head = [*columns, "runs", "falls", "vx_rms", "vy_rms", "yaw_rms", "ik_inv"]
+    lines = [head]
+    for s in summary:
+        f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
+        lines.append(
+            [str(s.get(c, "")) for c in columns]
+            + [
+                str(s["runs"]),
+                f"{s['falls']} ({100 * s['fall_rate']:.0f}%)",
+                f(s["vx_rms"]),
+                f(s["vy_rms"]),
+                f(s["yaw_rate_rms"]),
+                str(s["invalid_ik_steps"]),
+            ]
+        )
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    return "\n".join("  ".join(x.ljust(w) for x, w in zip(line, widths, strict=True)) for line in lines)
