@@ -94,7 +94,9 @@ class LoopConfig(NamedTuple):
         """The observation this loop assembles: the environment's (quadson_mjx.obs_spec)."""
         r = self.robot
         if self.observation == "sensors":
-            return obs_spec.sensor_observation(r.legs, r.motor_names, self.action_size, self.obs_history)
+            return obs_spec.sensor_observation(
+                r.legs, r.motor_names, self.action_size, self.obs_history, self.command_tracking
+            )
         return obs_spec.locomotion_observation(r.legs, r.motor_names, self.command_tracking)
 
     @property

@@ -96,10 +96,8 @@ class LocomotionEnv(Env):
         self._action_spec = obs_spec.locomotion_action(robot.legs, cfg.gait_action, cfg.action_scale_m)
         self._sensor_obs = cfg.observation == "sensors"
         if self._sensor_obs:
-            if not cfg.command_tracking:
-                raise ValueError("env.observation=sensors observes the command: it needs command_tracking")
             self._obs_spec = obs_spec.sensor_observation(
-                robot.legs, robot.motor_joints, self._action_spec.size, cfg.obs_history
+                robot.legs, robot.motor_joints, self._action_spec.size, cfg.obs_history, cfg.command_tracking
             )
         else:
             self._obs_spec = obs_spec.locomotion_observation(
@@ -309,8 +307,10 @@ class LocomotionEnv(Env):
         rpy, lin_vel, ang_vel = self._base_state(data)
         height = data.qpos[2] - terrain.ground_height(self._field, data.qpos[:2])
         contact = self.foot_contact(data)
-        stance = self.scheduled_stance(info["gait_progress"])
-        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel, height, contact, stance)
+        step = self._ctrl_dt / cycle_s  # one control step, as a fraction of the cycle
+        stance_near = self.scheduled_stance(info["gait_progress"] + jnp.stack([-step, 0.0, step]))
+        stance = stance_near[1]
+        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel, height, contact, stance_near)
         weights = cfg.reward.weights
         reward = sum(weights[k] * v for k, v in terms.items())
         term = cfg.termination
@@ -500,10 +500,11 @@ class LocomotionEnv(Env):
         )
         return self._obs_spec.assemble(parts)
 
-    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height, contact, stance) -> dict:
+    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height, contact, stance_near) -> dict:
         """Unweighted reward terms (rewards.locomotion_terms); height: the base origin above the ground
-        under it [m]; contact, stance: (4,) bool, the feet on the ground (at the last substep,
-        foot_contact) and the phase table's stance legs at the end of the step."""
+        under it [m]; contact (4,) bool: the feet on the ground (at the last substep, foot_contact);
+        stance_near (3, 4) bool: the phase table's stance legs one control step before, at and after
+        the end of the step."""
         return rewards.locomotion_terms(
             self._config.reward,
             self._forward_target,
@@ -516,5 +517,6 @@ class LocomotionEnv(Env):
             actuator_force=data.actuator_force,
             command=info["command"],
             contact=contact,
-            stance=stance,
+            stance=stance_near[1],
+            stance_near=stance_near,
         )

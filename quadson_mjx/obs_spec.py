@@ -174,12 +174,13 @@ def lagged(name: str, lag: int) -> str:
 
 
 def sensor_observation(
-    legs: Sequence[str], motor_joints: Sequence[str], action_size: int, history: int = 1
+    legs: Sequence[str], motor_joints: Sequence[str], action_size: int, history: int = 1, command: bool = True
 ) -> Spec:
     """The actor's observation from the robot's own sensors only (ROBOT_SENSORS): the IMU's gravity
     direction in the body frame (no absolute yaw) and gyroscope, the motor encoders' angles and their
     velocity by difference over one control tick, the policy's last action, sin and cos of each leg's
-    gait phase, and the command. history > 1 adds the IMU, encoder and action entries of the
+    gait phase, and the command (command=False: a policy of one gait at its own speed, which observes
+    none). history > 1 adds the IMU, encoder and action entries of the
     history - 1 ticks before, newest first ("gyro@-1", ..., HISTORY_ENTRIES)."""
     if history < 1:
         raise ValueError(f"history {history}: need at least 1 tick")
@@ -203,8 +204,9 @@ def sensor_observation(
     entries += [
         entry("phase_sin", tuple(legs), "", "clock", "sin(2 pi phase) of each leg's gait phase"),
         entry("phase_cos", tuple(legs), "", "clock", "cos(2 pi phase)"),
-        COMMAND,
     ]
+    if command:
+        entries.append(COMMAND)
     return Spec(tuple(entries))
 
 

@@ -87,6 +87,15 @@ def contact_phase(contact, stance):
     return jnp.mean((contact == stance).astype(jnp.float32))
 
 
+def contact_pattern(contact, stance_near):
+    """1 when every foot's ground contact (4,) bool equals the phase table's stance at this control
+    step or the one before or after (stance_near (3, 4) bool: the table one step earlier, now, one
+    step later), else 0: the gait evaluation's pattern match within one step (gait_eval), as a
+    reward. All four feet at once, so that a foot that scuffs in swing costs the whole step."""
+    agree = jnp.any(contact[..., None, :] == stance_near, axis=-2)
+    return jnp.all(agree, axis=-1).astype(jnp.float32)
+
+
 def locomotion_terms(
     r,
     forward_target,
@@ -101,11 +110,13 @@ def locomotion_terms(
     command,
     contact,
     stance,
+    stance_near,
 ) -> dict:
     """Every term of the locomotion environment, unweighted, by name (the config's reward.weights
     keys). r: the env config's `reward` group; forward_target [m/s]; body-frame velocities (3,);
     rpy (3,) [rad]; height above the ground under the base [m]; command (3,); contact, stance (4,)
-    bool: feet on the ground and the phase table's stance legs."""
+    bool: feet on the ground and the phase table's stance legs; stance_near (3, 4) bool: the table's
+    stance one control step before, at and after this one."""
     return {
         "forward_velocity_exp": forward_velocity_exp(lin_vel, forward_target, r.forward_sigma),
         "lateral_l2": lateral_l2(lin_vel, ang_vel),
@@ -119,4 +130,5 @@ def locomotion_terms(
         "lin_vel_z_l2": lin_vel_z_l2(lin_vel),
         "ang_vel_xy_l2": ang_vel_xy_l2(ang_vel),
         "contact_phase": contact_phase(contact, stance),
+        "contact_pattern": contact_pattern(contact, stance_near),
     }

@@ -164,6 +164,8 @@ def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -
         info["command"],
     )
     info["last_encoders"] = readings["motor_pos"]
+    if not cfg.command_tracking:  # a gait policy at the gait's own speed observes no command
+        del parts["command"]
     return parts, info
 
 

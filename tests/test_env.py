@@ -96,8 +96,10 @@ def test_reward_terms_by_hand(env, fns):
     z = float(s.pipeline_state.qpos[2])  # flat ground: the height above the ground is z
     contact = jnp.array([True, True, False, True])
     stance = jnp.array([True, False, False, True])
+    # the table one step before and after: FR's stance ends this step (it was down one step ago)
+    stance_near = jnp.stack([jnp.array([True, True, False, True]), stance, stance])
     terms = env._get_reward(
-        s.pipeline_state, jnp.full(12, 0.5), info, rpy, lin_vel, ang_vel, z, contact, stance
+        s.pipeline_state, jnp.full(12, 0.5), info, rpy, lin_vel, ang_vel, z, contact, stance_near
     )
     # forward (sigma 0.25): exp(-(0.3 - 0.5)^2 / (2 * 0.0625)) = exp(-0.32); lateral: 0.5*0.01 + 0.3*0.25 = 0.08;
     # vertical: 0.5*0.04 + 0.3*1 = 0.32; orientation: 40*0.01 + 30*0.04 + 5*0.09 = 2.05;
@@ -109,6 +111,8 @@ def test_reward_terms_by_hand(env, fns):
     assert float(terms["action_rate_l2"]) == pytest.approx(3.0, rel=1e-6)
     assert float(terms["height_l2"]) == pytest.approx((z - 0.2) ** 2, rel=1e-5)
     assert float(terms["contact_phase"]) == pytest.approx(0.75)  # 3 of 4 feet agree with the table
+    # FR is down one step after the table lifted it: inside the one-step tolerance, so all four agree
+    assert float(terms["contact_pattern"]) == 1.0
     # the seed preset's weights: its four terms as printed, tracking terms off
     w = env.config.reward.weights
     assert (w.forward_velocity_exp, w.lateral_l2, w.vertical_l2, w.orientation_l2) == (1.0, -0.8, -0.8, -1.0)

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from quadson_mjx import deploy, gait_eval
+from quadson_mjx import deploy, gait_eval, rewards
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
@@ -532,3 +532,20 @@ def test_ppo_resume_refuses_config_options_regression(ppo_cli, monkeypatch, caps
         signal.signal(signal.SIGTERM, sigterm)
     err = capsys.readouterr().err
     assert rc == 2 and named in err and "--resume" in err
+
+
+def test_contact_pattern_reward_is_the_evaluations_one_step_match():
+    # the reward (JAX, per step, jitted over a batch) against the evaluation's numpy definition
+    # (gait_eval.tolerant_agreement over a whole trajectory) on random footfalls and tables
+    rng = np.random.default_rng(3)
+    contact = rng.random((200, 4)) < 0.5
+    stance = rng.random((200, 4)) < 0.5
+    want = gait_eval.tolerant_agreement(contact, stance, 1).all(axis=-1)[1:-1]
+    near = np.stack([stance[:-2], stance[1:-1], stance[2:]], axis=1)  # (198, 3, 4)
+    got = jax.jit(jax.vmap(rewards.contact_pattern))(jnp.asarray(contact[1:-1]), jnp.asarray(near))
+    assert got.dtype == jnp.float32
+    np.testing.assert_array_equal(np.asarray(got), want.astype(np.float32))
+    assert 0 < want.sum() < want.size  # both outcomes occur
+    # by hand: one foot down in swing with the table in swing all around -> 0
+    lone = jnp.array([True, False, False, False])
+    assert float(rewards.contact_pattern(lone, jnp.zeros((3, 4), bool))) == 0.0
