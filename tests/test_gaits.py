@@ -549,3 +549,40 @@ def test_contact_pattern_reward_is_the_evaluations_one_step_match():
     # by hand: one foot down in swing with the table in swing all around -> 0
     lone = jnp.array([True, False, False, False])
     assert float(rewards.contact_pattern(lone, jnp.zeros((3, 4), bool))) == 0.0
+
+
+def _weighted_reward(cfg, rpy):
+    """The weighted reward of one step (as env.step sums it) at base attitude rpy, the rest fixed."""
+    terms = rewards.locomotion_terms(
+        cfg.reward,
+        0.3,
+        lin_vel=jnp.array([0.25, 0.02, 0.01]),
+        ang_vel=jnp.array([0.1, -0.2, 0.3]),
+        rpy=jnp.asarray(rpy),
+        height=0.2,
+        action=jnp.zeros(12),
+        last_action=jnp.zeros(12),
+        actuator_force=jnp.ones(12),
+        command=jnp.zeros(3),
+        contact=jnp.array([True, False, False, True]),
+        stance=jnp.array([True, False, False, True]),
+        stance_near=jnp.tile(jnp.array([True, False, False, True]), (3, 1)),
+    )
+    return float(sum(cfg.reward.weights[k] * v for k, v in terms.items()))
+
+
+@pytest.mark.parametrize("name", sorted(GAIT_RECIPES))
+def test_recipe_reward_does_not_see_the_heading_its_actor_cannot(name):
+    # the recipe's actor has the IMU (no magnetometer): a reward on absolute yaw is one it cannot
+    # steer by (measured: the sensor-only trot policy's heading wandered and falls paid)
+    cfg = env_config(gait=name, gait_recipe=True)
+    assert cfg.observation == "sensors"
+    r0 = _weighted_reward(cfg, [0.05, -0.03, 0.0])
+    assert _weighted_reward(cfg, [0.05, -0.03, 1.5]) == pytest.approx(r0, abs=1e-6)
+    # roll and pitch are still paid: 40 * 0.1^2 with weight -1
+    assert _weighted_reward(cfg, [0.15, -0.03, 0.0]) == pytest.approx(r0 - 40 * (0.15**2 - 0.05**2), rel=1e-5)
+    # the seed's true-state configuration pays yaw^2 (5 x 1.5^2 with weight -1): the test can tell
+    seed = env_config(gait=name)
+    assert _weighted_reward(seed, [0.05, -0.03, 1.5]) == pytest.approx(
+        _weighted_reward(seed, [0.05, -0.03, 0.0]) - 5 * 1.5**2, rel=1e-5
+    )
