@@ -10,7 +10,8 @@ by 1 mm), the feet's normal-force difference, each model's largest closure gap, 
 for the full model against itself with every target moved by 1 µrad (the floor two nearly equal
 runs reach) and without its knee4 hinges' damping (a change as small as the light model's); and the
 light model's error over one control step started from each state of the full model's run (with
-the model's 1 solver iteration and with 50). Last, mjx.step against mj_step on the light model
+the model's 1 solver iteration and with 50); each of the five gaits' open-loop trial (`quadson-gait`:
+mean speed, stayed up, roll and pitch ranges) on both models. Last, mjx.step against mj_step on the light model
 (float64, a converged solver).
 """
 
@@ -19,13 +20,17 @@ from __future__ import annotations
 import argparse
 import json
 
-from quadson_mjx.cli.gait import open_loop_targets
+from quadson_mjx.cli.gait import FIVE, open_loop_targets, run_trial
 from quadson_mjx.robots.quadson import gait as G
 from quadson_mjx.robots.quadson import light_check as L
 from quadson_mjx.robots.quadson import model as M
 
 CTRL_DT = 0.02
 SOLVER_CONVERGED = 50  # iterations of the converged-solver rows
+
+
+def _up(trial):
+    return "yes" if trial["stayed_up"] else f"NO {trial['fell_at_s']:.1f} s"
 
 
 def _mm(x):
@@ -72,6 +77,21 @@ def main() -> None:
             print(f"  one control step from the full model's state, {it or 1} solver iteration(s): feet max "
                   f"{1e3 * e['foot_max_m']:.3f} mm, RMS {1e3 * e['foot_rms_m']:.3f} mm; normal force max "
                   f"{e['force_max_n']:.3f} N, RMS {e['force_rms_n']:.3f} N")  # fmt: skip
+
+    print(
+        "\nopen-loop gaits, 10 s at the seed speed (quadson-gait): mean vx [m/s], stayed up, roll and pitch range [deg]"
+    )
+    print("gait     full: vx    stayed up   Δroll  Δpitch   light: vx    stayed up   Δroll  Δpitch")
+    out["gaits"] = {}
+    for gait in FIVE:
+        r = {v: run_trial(gait, fivebar_model=v) for v in M.FIVEBAR_MODELS}
+        out["gaits"][gait] = r
+        cells = "   ".join(
+            f"{r[v]['mean_vx']:9.3f} {_up(r[v]):>9s} {r[v]['roll_range_deg']:7.2f} "
+            f"{r[v]['pitch_range_deg']:7.2f}"
+            for v in M.FIVEBAR_MODELS
+        )
+        print(f"{gait:8s} {cells}")
 
     out["mjx_vs_c"] = L.mjx_vs_c("light")
     r = out["mjx_vs_c"]

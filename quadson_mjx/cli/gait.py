@@ -77,13 +77,21 @@ def open_loop_targets(gait: str, duration_s: float, ctrl_dt: float = 0.02, ramp_
 
 
 def run_trial(
-    gait: str, command=None, swing=None, duration_s=10.0, ctrl_dt=0.02, ramp_s=1.0, scene="flat"
+    gait: str,
+    command=None,
+    swing=None,
+    duration_s=10.0,
+    ctrl_dt=0.02,
+    ramp_s=1.0,
+    scene="flat",
+    fivebar_model="full",
 ) -> dict:
-    """One open-loop trial -> dict of results (SI, angles in degrees where named _deg)."""
+    """One open-loop trial -> dict of results (SI, angles in degrees where named _deg); fivebar_model: the
+    leg model (model.FIVEBAR_MODELS)."""
     params = G.gait_params(gait) if swing is None else G.gait_params(gait, swing=swing)
     if command is None:
         command = (float(G.seed_speed(params)), 0.0, 0.0)
-    model = M.load_model(scene)
+    model = M.load_model(scene, fivebar_model)
     ids = M.model_ids(model)
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home"))
