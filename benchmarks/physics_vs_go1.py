@@ -18,6 +18,9 @@ most 1 cm), which also reports the five-bar closure residual (max over worlds an
 of the distance between each leg's two p3 sites; 0 for Caramel, which has no loops) and the share
 of worlds that fell. Prints a
 markdown table; the JSON is rewritten after every measurement.
+
+--fivebar-models full light measures each setting on both of Quadson's leg models (env.fivebar_model;
+the light one's rows are named SETTING+light); robots without that model (Caramel) are skipped for it.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from mujoco import mjx
 
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
-from quadson_mjx.robots import ROBOT_NAMES
+from quadson_mjx.robots import ROBOT_NAMES, get_robot
 
 NOISE_RAD = 0.1
 ACTION_RANGE = 0.2
@@ -181,6 +184,13 @@ def main(argv=None):
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
     p.add_argument("--robots", nargs="+", default=["quadson"], choices=list(ROBOT_NAMES))
+    p.add_argument(
+        "--fivebar-models",
+        nargs="+",
+        default=["full"],
+        choices=["full", "light"],
+        help="env.fivebar_model values to measure (light: Quadson's link 4 as a fixed-length tendon)",
+    )
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     meta = run_meta(args)
@@ -205,20 +215,30 @@ def main(argv=None):
                     m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats, sensors == "read"
                 )
                 record({"robot": "go1_feetonly", "setting": f"sensors_{sensors}", "envs": n, **out})
-    for robot in args.robots:
-        for name in args.settings:
-            cfg = env_config(robot=robot)
-            for key, value in SETTINGS[name].items():
-                cfg[key] = value
-            env = LocomotionEnv(cfg)
-            m = env.mj_model
-            home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
-            dx = mjx.make_data(env.sys)
-            for n in args.envs:
-                row = {"robot": robot, "setting": name, "envs": n, "nefc": int(dx._impl.efc_J.shape[0])}
-                row.update(physics_only(m, m.key_qpos[home], m.key_ctrl[home], n, args.steps, args.repeats))
-                row.update(env_under_gait(env, n, args.steps, args.repeats))
-                record(row)
+    for robot, name, fivebar in (
+        (r, s, f) for r in args.robots for f in args.fivebar_models for s in args.settings
+    ):
+        if fivebar not in get_robot(robot).model_variants:
+            continue
+        cfg = env_config(robot=robot)
+        for key, value in {**SETTINGS[name], "fivebar_model": fivebar}.items():
+            cfg[key] = value
+        env = LocomotionEnv(cfg)
+        m = env.mj_model
+        home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
+        dx = mjx.make_data(env.sys)
+        setting = name if fivebar == "full" else f"{name}+{fivebar}"
+        for n in args.envs:
+            row = {
+                "robot": robot,
+                "setting": setting,
+                "envs": n,
+                "nv": m.nv,
+                "nefc": int(dx._impl.efc_J.shape[0]),
+            }
+            row.update(physics_only(m, m.key_qpos[home], m.key_ctrl[home], n, args.steps, args.repeats))
+            row.update(env_under_gait(env, n, args.steps, args.repeats))
+            record(row)
 
     anchor = {
         r["envs"]: r["physics_steps_per_s"]
@@ -228,16 +248,16 @@ def main(argv=None):
     print(f"\ndevice: {meta['device']}; {args.steps} control steps of 0.02 s (5 physics steps each)")
     print(f"vs Go1: against Go1 with sensors {args.go1_sensors[0]}")
     print(
-        "| robot | setting | envs | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
+        "| robot | setting | envs | nv | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         ratio = f"{r['physics_steps_per_s'] / anchor[r['envs']]:.2f}x" if r["envs"] in anchor else "-"
         env_sps = f"{r['env_steps_per_s']:,.0f}" if "env_steps_per_s" in r else "-"
         res = f"{1e3 * r['closure_residual_max_m']:.2f} mm" if "closure_residual_max_m" in r else "-"
         fell = f"{100 * r['fell_frac']:.1f} %" if "fell_frac" in r else "-"
         print(
-            f"| {r['robot']} | {r['setting']} | {r['envs']} | {r.get('nefc', '-')} | "
+            f"| {r['robot']} | {r['setting']} | {r['envs']} | {r.get('nv', '-')} | {r.get('nefc', '-')} | "
             f"{r['physics_steps_per_s']:,.0f} | {ratio} | {env_sps} | {res} | {fell} |"
         )
 

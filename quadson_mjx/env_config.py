@@ -131,6 +131,7 @@ ENV_KEYS_ADDED = {
     "observation": "true_state",
     "obs_history": 1,
     "asymmetric_critic": False,
+    "fivebar_model": "full",
 }
 
 # What the actor observes (obs_spec): "sensors", the robot's own sensors only (sensor_observation);
@@ -252,6 +253,10 @@ def env_config(
             "jacobian": "auto",
             # MJX implementation: "jax" (this project's measured path) or "warp" (needs warp-lang).
             "impl": "jax",
+            # The leg model (Robot.model_variants): "full" five-bar, or Quadson's "light" one, whose
+            # passive link 4 is a fixed-length tendon (4 DoFs and 1 equality row per leg instead of
+            # 5 and 3; docs/physics.md, benchmarks/fivebar_light_vs_full.py).
+            "fivebar_model": "full",
             # 50 Hz control: the control rate of seed 003's gait planner and of MJX locomotion
             # benchmarks; the seed's 240 Hz with one action per physics step would make PPO's
             # horizon 5x longer for no gain in what a position servo can follow.
@@ -389,6 +394,7 @@ ENV_RULES: dict[str, Rule] = {
     "solver": Rule("name"),
     "jacobian": Rule("name"),
     "impl": Rule("name"),
+    "fivebar_model": Rule("name"),
     "ctrl_dt": Rule("number", 0.0, 1.0, _S, lo_open=True),  # and a multiple of the model timestep
     "episode_length_s": Rule("number", 0.0, 3600.0, _S, lo_open=True),  # and >= ctrl_dt
     "gait": Rule("name"),
@@ -476,6 +482,9 @@ def check_env_config(cfg) -> None:
         raise ValueError(f"env.terrain is {cfg.terrain!r}; choose from {list(TERRAINS)}")
     if cfg.gait not in spec.gait_names:
         raise ValueError(f"env.gait is {cfg.gait!r}; {robot} has {list(spec.gait_names)}")
+    fivebar = cfg.get("fivebar_model", "full")
+    if fivebar not in spec.model_variants:
+        raise ValueError(f"env.fivebar_model is {fivebar!r}; {robot} has {list(spec.model_variants)}")
     if cfg.gait_action and not spec.gait_action:
         raise ValueError(f"env.gait_action: {robot}'s gait cannot be scaled by the policy")
     for key, names in (

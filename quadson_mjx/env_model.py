@@ -29,7 +29,7 @@ def name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray
 
 def training_model(robot, cfg) -> mujoco.MjModel:
     """robot: quadson_mjx.robots.Robot; cfg: an env config -> a fresh MjModel of its terrain's scene."""
-    m = robot.load_model(cfg.terrain)
+    m = robot.load_model(cfg.terrain, cfg.get("fivebar_model", "full"))
     # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
     # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)

@@ -59,7 +59,11 @@ def record(
         w.write_metadata("env_config", {"json": to_json(env.config)})
         w.write_metadata("versions", versions())
         robot = env.robot
-        w.attach(f"{robot.name}.xml", robot.model_xml_text(env.config.terrain).encode(), "application/xml")
+        w.attach(
+            f"{robot.name}.xml",
+            robot.model_xml_text(env.config.terrain, env.config.get("fivebar_model", "full")).encode(),
+            "application/xml",
+        )
         w.log(0, "info", f"start: {controller.name}, {n_envs} env(s), {n_steps} steps of {ctrl_dt} s")
         w.write_scene(0)
         runs = rollout.run(env, controller, rng, n_envs, n_steps, segment_steps, command, randomize)

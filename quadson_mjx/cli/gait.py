@@ -63,14 +63,35 @@ def planned_motor_targets(params, command, times, home_feet, ramp_s):
     return np.asarray(angles, np.float64), np.asarray(valid)
 
 
+def open_loop_targets(gait: str, duration_s: float, ctrl_dt: float = 0.02, ramp_s: float = 1.0) -> np.ndarray:
+    """(n, 12) motor targets [rad] (C.ACTUATORS order) of Quadson's open-loop `gait` at its seed
+    speed from the home feet, one row per control step of ctrl_dt [s] (as run_trial plays them)."""
+    params = G.gait_params(gait)
+    command = np.array([float(G.seed_speed(params)), 0.0, 0.0], np.float32)
+    model = M.load_model()
+    home = M.home_ctrl(model)[M.model_ids(model).motor_actuator].reshape(4, 3)
+    home_feet = fivebar.leg_fk(jnp.asarray(home, jnp.float32))
+    times = np.arange(round(duration_s / ctrl_dt)) * ctrl_dt
+    angles, _ = planned_motor_targets(params, command, times, home_feet, ramp_s)
+    return angles.reshape(len(times), 12)
+
+
 def run_trial(
-    gait: str, command=None, swing=None, duration_s=10.0, ctrl_dt=0.02, ramp_s=1.0, scene="flat"
+    gait: str,
+    command=None,
+    swing=None,
+    duration_s=10.0,
+    ctrl_dt=0.02,
+    ramp_s=1.0,
+    scene="flat",
+    fivebar_model="full",
 ) -> dict:
-    """One open-loop trial -> dict of results (SI, angles in degrees where named _deg)."""
+    """One open-loop trial -> dict of results (SI, angles in degrees where named _deg); fivebar_model: the
+    leg model (model.FIVEBAR_MODELS)."""
     params = G.gait_params(gait) if swing is None else G.gait_params(gait, swing=swing)
     if command is None:
         command = (float(G.seed_speed(params)), 0.0, 0.0)
-    model = M.load_model(scene)
+    model = M.load_model(scene, fivebar_model)
     ids = M.model_ids(model)
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home"))

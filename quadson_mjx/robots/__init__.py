@@ -31,8 +31,8 @@ class Robot:
 
     name: str
     legs: tuple[str, ...]  # leg order of every per-leg array
-    load_model: Callable[[str], Any]  # scene (TERRAINS) -> mujoco.MjModel
-    model_xml_text: Callable[[str], str]  # scene -> robot and scene MJCF text (stored in logs)
+    load_model: Callable[..., Any]  # (scene (TERRAINS), variant="full") -> mujoco.MjModel
+    model_xml_text: Callable[..., str]  # (scene, variant="full") -> robot and scene MJCF text (logs)
     motor_joints: tuple[str, ...]  # the 12 observed joints, legs x motors order
     actuators: tuple[str, ...]  # the 12 actuators in the same order
     root_body: str  # the free-floating base; its free joint comes first in qpos / qvel
@@ -52,6 +52,8 @@ class Robot:
     height_target_m: float  # base height the reward holds [m]
     gait_action: bool  # the gait may be scaled per step by the policy (traced step length, cycle)
     env_defaults: Mapping[str, Any]  # env config values of this robot, dotted keys (env_config)
+    # leg models load_model accepts (env.fivebar_model): Quadson's "full" and "light" five-bar
+    model_variants: tuple[str, ...] = ("full",)
 
     def foot_geoms(self) -> tuple[str, ...]:
         return tuple(f"{leg}_foot_collision" for leg in self.legs)

@@ -237,7 +237,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         )
     xml_name = f"{env.robot.name}.xml"
     if not (contents and any(a.name == xml_name for a in contents.attachments)):
-        log.attachment(xml_name, env.robot.model_xml_text(env_cfg.terrain).encode(), "application/xml")
+        log.attachment(
+            xml_name,
+            env.robot.model_xml_text(env_cfg.terrain, env_cfg.get("fivebar_model", "full")).encode(),
+            "application/xml",
+        )
     event = {"event": "resume" if resume else "start", "step": start_step}
     if resume:
         event.update(restored=restored, kept_log=kept.name if kept else "", copied_messages=len(old))

@@ -219,9 +219,15 @@ def write_model_files(directory: Path = MODEL_DIR) -> list[Path]:
 # --- loading ----------------------------------------------------------------------------------------
 
 
-def load_model(scene: str = "flat") -> mujoco.MjModel:
+def _check_variant(variant: str) -> None:
+    if variant != "full":
+        raise ValueError(f"caramel has serial legs: model variant {variant!r} is not one; expected 'full'")
+
+
+def load_model(scene: str = "flat", variant: str = "full") -> mujoco.MjModel:
     """The compiled model: "flat" (scene.xml), "rough" (scene_rough.xml), or "fixed" (base welded to
-    the world at FIXED_BASE_HEIGHT, no floor: a leg moves in the air)."""
+    the world at FIXED_BASE_HEIGHT, no floor: a leg moves in the air). variant: "full" only."""
+    _check_variant(variant)
     if scene == "fixed":
         return mujoco.MjModel.from_xml_string(robot_xml(floating=False))
     if scene not in SCENES:
@@ -229,8 +235,9 @@ def load_model(scene: str = "flat") -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_path(str(MODEL_DIR / SCENES[scene]))
 
 
-def model_xml_text(scene: str = "flat") -> str:
+def model_xml_text(scene: str = "flat", variant: str = "full") -> str:
     """The robot and scene MJCF as text (to store beside checkpoints and logs)."""
+    _check_variant(variant)
     if scene not in SCENES:
         raise ValueError(f"unknown scene {scene!r}: expected one of {sorted(SCENES)}")
     return (MODEL_DIR / _BODY_XML).read_text() + "\n" + (MODEL_DIR / SCENES[scene]).read_text()

@@ -43,4 +43,5 @@ ROBOT = Robot(
     height_target_m=C.STANCE_HEIGHT,  # seed 000's 0.2 m
     gait_action=True,
     env_defaults={},  # env_config's defaults are Quadson's
+    model_variants=model.FIVEBAR_MODELS,
 )
