@@ -264,3 +264,33 @@ def test_config_and_policy_errors_are_one_line():
         _sup(getup=wrong)
     with pytest.raises(ValueError, match="rest_motor"):
         Supervisor(deploy.DeployLoop(_Walk()), _Getup(), rest_motor=np.full(12, 9.0))
+
+
+def test_an_exported_getup_file_loads_and_drives(tmp_path):
+    """A get-up .npz written by the export's own array writer (random weights, the get-up task's
+    specs in its metadata) loads with deploy_policy.load_policy and drives the getting_up ticks:
+    its targets are getup_targets of the file's own numpy inference, clamped."""
+    from quadson_mjx.deploy_policy import load_policy
+    from quadson_mjx.export import export_arrays
+
+    rng = np.random.default_rng(5)
+    sizes = [30, 16, 24]  # tanh_normal: the last layer gives (mean, scale) of 12 actions
+    params = {f"hidden_{i}": {"kernel": rng.normal(0, 0.5, (a, b)), "bias": rng.normal(0, 0.1, b)} for i, (a, b) in enumerate(zip(sizes, sizes[1:], strict=False))}  # fmt: skip
+    meta = {
+        "env_config": {"robot": "quadson", "task": "getup"},
+        "obs_spec": obs_spec.getup_observation(C.MOTOR_JOINTS).to_json(),
+        "action_spec": obs_spec.getup_action(C.MOTOR_JOINTS).to_json(),
+    }
+    arrays = export_arrays((None, {"params": params}), 30, 12, False, meta)
+    np.savez(tmp_path / "getup.npz", **arrays)
+    policy = load_policy(tmp_path / "getup.npz")
+    sup = _sup(SupervisorConfig(fall_confirm_s=0.0, settle_s=0.0, blend_s=0.02), policy)
+    out = sup.step(_quat(D(180)), np.zeros(3), HOME)  # on its back: getting_up at once, no blend
+    # the observation on its back, by hand: gravity (0, 0, 1) in the body, gyro 0, home, no action yet
+    obs = np.concatenate([[0.0, 0.0, 1.0], np.zeros(3), HOME, np.zeros(12)]).astype(np.float32)
+    action = policy(obs)
+    np.testing.assert_allclose(out.action, np.clip(action, -1, 1), atol=1e-6)
+    r = sup.walking.config.robot
+    want = r.clamp(getup_targets(action, r.motor_limits))
+    step = r.servo_speed_rps * 0.02  # the rate limit from the targets sent before (home)
+    np.testing.assert_allclose(out.motor_targets, HOME + np.clip(want - HOME, -step, step), atol=1e-5)
