@@ -34,7 +34,8 @@ encoders [rad], last_action (12) its previous action (0 at the start of an attem
 
 Bad input: a tick whose sensors fail deploy_safety.check_sensors (a NaN IMU, a zero quaternion, an
 encoder beyond its limit) changes no mode and no timer; while walking it takes the walking loop's
-safety path, otherwise the supervisor's own safety layer holds, then eases home.
+safety path, otherwise the supervisor's own safety layer holds, then eases home; the first good
+tick after a fault that reached the ease blends from there to the mode's targets over blend_s.
 
 Numpy only (and what the two policies need), like the walking loop.
 """
@@ -241,7 +242,7 @@ class Supervisor:
     def _switch(self, mode: Mode) -> None:
         if self.mode is Mode.WALKING:
             self.safety.reset(self.sent)  # the get-up side starts from what was sent
-        if mode in (Mode.GETTING_UP,) and self.mode in (Mode.FALLEN, Mode.RESTING):
+        if mode is Mode.GETTING_UP and self.mode in (Mode.FALLEN, Mode.RESTING):
             self.getup.reset()
             self.attempt_ticks = 0
         if mode is Mode.WALKING:
@@ -298,6 +299,9 @@ class Supervisor:
         tilt_rad = math.nan if reasons else tilt(quat)
         if not reasons:
             self._advance(tilt_rad)
+            if self.mode is not Mode.WALKING and self.safety.restart_needed:
+                # back from a fault that eased home: blend again from there, as at a switch
+                self._blend = (self.sent.copy(), 0, max(self._ticks["blend_s"], 1))
         action, mode = None, self.mode
         if mode is Mode.WALKING:
             out = self.walking.step(quat, gyro, motor_pos, command, base_lin_vel)

@@ -216,6 +216,15 @@ def test_nan_imu_takes_the_safety_path_and_freezes_the_modes():
         np.testing.assert_allclose(o.motor_targets, last.motor_targets, atol=1e-12)
     assert (sup.mode_ticks, sup.attempt_ticks) == ticks  # no timer ran on the bad ticks
     assert sup.fault_counts["imu_nonfinite"] == 4
+    # a fault long enough to ease home (hold 0.2 s + 0.6 s of the 1 s ease): the first good tick
+    # blends from the eased targets toward the policy's again (smoothstep(1 / 13) of the way)
+    eased = [sup.step(nan_q, np.zeros(3), HOME) for _ in range(40)][-1]
+    assert eased.fault == Fault.EASING_HOME
+    r = sup.walking.config.robot
+    target = r.clamp(getup_targets(np.zeros(12), r.motor_limits))
+    back = sup.step(_quat(D(90)), np.zeros(3), HOME)
+    w = (1 / 13) ** 2 * (3 - 2 / 13)
+    np.testing.assert_allclose(back.motor_targets, eased.motor_targets + w * (target - eased.motor_targets))
     # a NaN action from the get-up policy holds as well
     sup.getup.policy.action = np.full(12, np.nan, np.float32)
     out = sup.step(_quat(D(90)), np.zeros(3), HOME)
