@@ -303,3 +303,49 @@ def test_an_exported_getup_file_loads_and_drives(tmp_path):
     want = r.clamp(getup_targets(action, r.motor_limits))
     step = r.servo_speed_rps * 0.02  # the rate limit from the targets sent before (home)
     np.testing.assert_allclose(out.motor_targets, HOME + np.clip(want - HOME, -step, step), atol=1e-5)
+
+
+def test_closed_loop_in_mujoco_c_fall_getup_stand_walk():
+    """The supervisor on sim2sim's plant (MuJoCo C, full contacts, servo model, exact sensors):
+    walking, a roll kick throws the robot on its back, the fall is detected on the 5th tick whose
+    true tilt is above 50 deg, get-up starts 15 ticks later; the robot is then set upright (the
+    plant's reset stands in for a trained get-up policy) and walking resumes after the 1 s dwell
+    and stays up. Every target sent is in the limits, within the servo's rate and keeps the toe-in
+    guard; the chains stay closed."""
+    from quadson_mjx import sim2sim_plant as P
+    from quadson_mjx.robots import get_robot
+    from quadson_mjx.sim2sim_model import plant_model
+
+    robot = get_robot("quadson")
+    plant = P.Plant(robot, plant_model(robot, "flat"), P.ServoParams(), P.SensorParams(enabled=False))
+    plant.reset()
+    sup = _sup()
+    r = sup.walking.config.robot
+    lo, hi = r.motor_limits[:, 0], r.motor_limits[:, 1]
+    sup.getup.policy.action = (2.0 * (r.home_motor - lo) / (hi - lo) - 1.0).astype(np.float32)  # home
+    sup.reset(plant.read().motor_pos)
+    modes, true_tilt, sent = [], [], [sup.sent]
+    for k in range(230):
+        if k == 30:
+            plant.d.qvel[3] = 30.0  # roll rate [rad/s]: over onto the back
+        if k == 120:
+            plant.reset()  # upright on the home stance
+        rd = plant.read()
+        out = sup.step(rd.imu_quat_wxyz, rd.gyro, rd.motor_pos, command=(0.2, 0.0, 0.0))
+        roll, pitch, _ = plant.truth()["rpy"]
+        true_tilt.append(math.acos(math.cos(roll) * math.cos(pitch)))
+        modes.append(out.mode)
+        sent.append(out.motor_targets)
+        plant.send(out.motor_targets)
+        plant.advance(0.02)
+        assert np.all(np.isfinite(plant.d.qpos)) and np.max(plant.closure_gaps()) < 2e-3
+    above = np.array(true_tilt) > D(50)
+    fall = next(k for k in range(4, 230) if above[k - 4 : k + 1].all())
+    assert modes.index(Mode.FALLEN) == fall and 30 < fall < 60
+    assert modes[fall + 15] == Mode.GETTING_UP and max(true_tilt[fall + 15 : 120]) > D(150)  # on its back
+    assert modes[120:170] == [Mode.STANDING_HOLD] * 50 and modes[170:] == [Mode.WALKING] * 60
+    assert max(true_tilt[170:]) < D(30)
+    sent = np.array(sent)
+    assert np.all(sent >= lo - 1e-12) and np.all(sent <= hi + 1e-12)
+    assert np.max(np.abs(np.diff(sent, axis=0))) <= r.servo_speed_rps * 0.02 + 1e-9
+    assert np.all(sent.reshape(-1, 4, 3)[:, :, 2] - sent.reshape(-1, 4, 3)[:, :, 1] <= C.TOE_IN_MAX + 1e-12)
