@@ -349,3 +349,17 @@ def test_closed_loop_in_mujoco_c_fall_getup_stand_walk():
     assert np.all(sent >= lo - 1e-12) and np.all(sent <= hi + 1e-12)
     assert np.max(np.abs(np.diff(sent, axis=0))) <= r.servo_speed_rps * 0.02 + 1e-9
     assert np.all(sent.reshape(-1, 4, 3)[:, :, 2] - sent.reshape(-1, 4, 3)[:, :, 1] <= C.TOE_IN_MAX + 1e-12)
+
+
+def test_the_supervisor_imports_neither_jax_nor_mujoco():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import sys; from quadson_mjx import deploy, deploy_supervisor;"
+        "print(sorted(n for n in ('jax', 'brax', 'flax', 'mujoco') if n in sys.modules))"
+    )
+    root = Path(__file__).resolve().parents[1]
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root)
+    assert res.stdout.strip() == "[]"
