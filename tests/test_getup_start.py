@@ -162,6 +162,11 @@ def test_gaps_equal_mujocos_geom_distances_or_are_smaller(mj_model):
     assert 10 < apart < len(angles) - 10  # both kinds were drawn
 
 
+def test_the_fallback_home_stance_passes_every_check():
+    home = jnp.asarray(quadson_model.home_motor_angles(), jnp.float32)
+    assert bool(G.pose_ok(home, G.StartConfig()))
+
+
 def test_segment_distance_against_dense_sampling():
     rng = np.random.default_rng(1)
     u = np.linspace(0.0, 1.0, 801)

@@ -23,7 +23,8 @@ tries robot_candidates such sets of four legs and keeps the first whose legs kee
 If no set passes, the draw keeps the home stance's motor angles in the drawn orientation and
 returns valid False (the home stance passes every check): the caller counts those.
 The base is then placed at x = y = 0 with the lowest point of the robot's collision geometry
-drop_height_m above the ground (z = 0), drop_height_m uniform in StartConfig.drop_height_m. The
+drop_height_m above a flat ground at z = 0 (on a height field add the ground's height under
+it), drop_height_m uniform in StartConfig.drop_height_m. The
 passive knee angles come from the five-bar's FK (fivebar.leg_points), so the chains start closed.
 
 JAX, jit- and vmap-friendly; shapes are static. Distances in the body frame: segment-segment
