@@ -14,7 +14,8 @@ vertical, from the IMU quaternion (yaw-independent):
                  -> getting_up, a new attempt.
   getting_up     the get-up policy drives. Tilt at or below upright_tilt_rad -> standing_hold.
   standing_hold  the get-up policy still drives; after stand_dwell_s without a tick above
-                 upright_tilt_rad -> walking (the walking loop restarts from the targets sent last).
+                 upright_tilt_rad -> walking (the walking loop restarts from the targets sent last,
+                 its heading reset to the IMU's yaw then, as at the start of a walk).
                  A tilt above hold_exit_tilt_rad -> getting_up (the same attempt).
   resting        an attempt that has not reached walking within getup_timeout_s (counted in
                  getting_up and standing_hold; not while a dwell is running): the targets ease to
@@ -233,6 +234,7 @@ class Supervisor:
         self.attempt_ticks = 0  # ticks completed in the current get-up attempt
         self.dwell_ticks = 0  # consecutive standing_hold ticks at or below upright_tilt_rad
         self._blend = (self.sent.copy(), 1, 1)  # (from, ticks done, ticks of the blend)
+        self._new_walk = False
 
     @property
     def fault_counts(self) -> dict:
@@ -247,6 +249,7 @@ class Supervisor:
             self.attempt_ticks = 0
         if mode is Mode.WALKING:
             self.walking.reset(self.sent)  # checked: sent targets are inside the limits
+            self._new_walk = True  # step() resets the walk's heading to this tick's IMU yaw
         if mode is Mode.STANDING_HOLD:
             self.dwell_ticks = 0
         # between getting_up and standing_hold the same policy drives: no blend
@@ -298,7 +301,10 @@ class Supervisor:
         reasons = check_sensors(self.safety.cfg, r.motor_limits, quat, gyro, motor_pos)
         tilt_rad = math.nan if reasons else tilt(quat)
         if not reasons:
+            self._new_walk = False
             self._advance(tilt_rad)
+            if self._new_walk:  # as at the start of a walk: the IMU's yaw now is 0
+                self.walking.reset_heading(quat)
             if self.mode is not Mode.WALKING and self.safety.restart_needed:
                 # back from a fault that eased home: blend again from there, as at a switch
                 self._blend = (self.sent.copy(), 0, max(self._ticks["blend_s"], 1))

@@ -172,6 +172,14 @@ def test_back_to_walking_after_the_dwell():
     assert modes[10:35] == [Mode.STANDING_HOLD] * 25
     assert modes[35:] == [Mode.WALKING] * 15
     assert sup.walking.time_s == pytest.approx(15 * 0.02)  # the walk restarted at the switch
+    # its heading too: standing up facing yaw 0.7 rad, the walk's observed yaw is 0 again
+    sup = _sup(cfg)
+    for r, yaw in [(0.0, 0.0)] * 5 + [(D(100), 0.3)] * 10 + [(D(5), 0.7)] * 30:  # walked at yaw 0
+        sup.step(_quat(r, 0.0, yaw), np.zeros(3), HOME)
+    assert sup.mode == Mode.WALKING
+    np.testing.assert_allclose(
+        sup.walking.observer.heading, [math.cos(-0.35), 0, 0, math.sin(-0.35)], atol=1e-9
+    )
 
 
 def test_every_switch_blends_and_no_tick_jumps():
