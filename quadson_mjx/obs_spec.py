@@ -210,6 +210,35 @@ def sensor_observation(
     return Spec(tuple(entries))
 
 
+def getup_observation(motor_joints: Sequence[str]) -> Spec:
+    """The get-up task's observation, from the robot's own sensors only (ROBOT_SENSORS): the IMU's
+    gravity direction in the body frame and gyroscope, the motor encoders' angles, the policy's last
+    action. No clock and no command: a get-up does not follow the gait."""
+    motor_joints = tuple(motor_joints)
+    return Spec(
+        (
+            entry("gravity", ("x", "y", "z"), "1", "imu", "unit gravity direction, body frame"),
+            entry("gyro", ("x", "y", "z"), "rad/s", "imu", "gyroscope, body frame"),
+            entry("motor_pos", motor_joints, "rad", "encoders", "motor angles"),
+            entry(
+                "last_action",
+                tuple(f"a{i}" for i in range(len(motor_joints))),
+                "",
+                "policy",
+                "the action of the previous tick",
+            ),
+        )
+    )
+
+
+def getup_action(motor_joints: Sequence[str]) -> Spec:
+    """The get-up task's action in [-1, 1]: one motor target per motor, lo + (a + 1) / 2 (hi - lo)
+    over the motor's real range [lo, hi] (deploy_supervisor.getup_targets)."""
+    return Spec(
+        (entry("motor_target", tuple(motor_joints), "", "policy", "-1: lower limit, +1: upper limit"),)
+    )
+
+
 def privileged_observation(legs: Sequence[str], actor: Spec) -> Spec:
     """The critic's observation (asymmetric actor-critic): the actor's entries, then what only the
     simulator knows: the base's true velocity and height above the ground under it, each foot's
