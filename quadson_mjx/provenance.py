@@ -11,7 +11,11 @@ import jax
 import numpy as np
 
 
-def versions() -> dict[str, str]:
+def versions(source: Path | None = None) -> dict[str, str]:
+    """The versions of this process's libraries and devices, and of the source tree `source` (default:
+    this package's folder): git_revision, its HEAD (or "unknown"), and git_tree, "clean" when no
+    tracked file differs from HEAD, "modified" when one does (a run from edited code, or a copy of
+    a checkout whose .git is not the tree's own), "unknown" outside git."""
     import brax
     import mujoco
 
@@ -19,11 +23,19 @@ def versions() -> dict[str, str]:
     out["mujoco"] = mujoco.__version__
     out["numpy"] = np.__version__
     out["devices"] = ", ".join(d.device_kind for d in jax.devices())
+    out["git_revision"], out["git_tree"] = "unknown", "unknown"
+    cwd = Path(__file__).parent if source is None else source
+
+    def git(*args):
+        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=cwd, timeout=10)
+
     try:
-        rev = subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent, timeout=5
-        )
-        out["git_revision"] = rev.stdout.strip() or "unknown"
+        rev = git("rev-parse", "HEAD")
+        if rev.returncode == 0 and rev.stdout.strip():
+            out["git_revision"] = rev.stdout.strip()
+            status = git("status", "--porcelain", "--untracked-files=no")
+            if status.returncode == 0:
+                out["git_tree"] = "modified" if status.stdout.strip() else "clean"
     except (OSError, subprocess.SubprocessError):
-        out["git_revision"] = "unknown"
+        pass
     return out
