@@ -1,0 +1,229 @@
+"""Tiled training ground: one MuJoCo height field of square tiles, columns by type, rows by difficulty.
+
+The layout of legged_gym's and Isaac Lab's terrain generators: a robot's tile column is its terrain
+type and its row its level, which a curriculum moves up and down (`curriculum_levels`). The edges of
+flat, slope, stair and wave tiles are at height 0, so tiles meet without a cliff (a stone or box
+may straddle an edge); the robot may start anywhere on a tile (`spawn_xy`), with no flat patch
+unless the tile is flat.
+
+Tile types (d = (level + 1) / levels, the difficulty in (0, 1]):
+
+* `flat`: height 0.
+* `stones`: loose half-ellipsoid stones of 3-8 cm diameter, up to `max_stone_m * d` high.
+* `slope_up`, `slope_down`: a pyramid of slope `max_slope_deg * d`; `up`: the tile's centre is its
+  lowest point, so a robot walking out from the centre climbs; `down`: the centre is its highest.
+* `stairs_up`, `stairs_down`: the same pyramids in steps of rise `max_step_m * d` and tread
+  `tread_m` (square rings); the centre square is the bottom (`up`) or top (`down`) landing.
+* `waves`: sin(2 pi x / L) sin(2 pi y / L) of amplitude `max_wave_m * d`, L dividing the tile.
+* `obstacles`: scattered boxes of 5-20 cm sides, `max_obstacle_m * d` high.
+
+Heights are sampled on the height field's grid (`cell_m`); MuJoCo joins the samples into triangles
+(terrain.py), so a step's riser is one cell wide (2 cm by default): the nearest to vertical a height
+field can be. Everything here is numpy, built once; the queries in JAX are terrain.ground_height and
+the functions at the end of this module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+TILE_TYPES = (
+    "flat",
+    "stones",
+    "slope_up",
+    "slope_down",
+    "stairs_up",
+    "stairs_down",
+    "waves",
+    "obstacles",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class TerrainSpec:
+    """The tiled ground. Lengths in m, angles in degrees. Defaults: 2 m tiles for a 0.3 m robot,
+    slopes to 20 degrees and steps to 4 cm (the issue's ranges), treads of 0.15 m (half a body)."""
+
+    types: tuple[str, ...] = TILE_TYPES
+    levels: int = 10
+    tile_m: float = 2.0
+    cell_m: float = 0.02
+    max_slope_deg: float = 20.0
+    max_step_m: float = 0.04
+    tread_m: float = 0.15
+    max_wave_m: float = 0.03
+    wave_length_m: float = 0.5
+    max_stone_m: float = 0.03
+    max_obstacle_m: float = 0.03
+    seed: int = 0
+
+    def __post_init__(self):
+        unknown = [t for t in self.types if t not in TILE_TYPES]
+        if unknown or not self.types or len(set(self.types)) != len(self.types):
+            raise ValueError(f"terrain types {list(self.types)}: each once, from {list(TILE_TYPES)}")
+        if not (isinstance(self.levels, int) and self.levels >= 1):
+            raise ValueError(f"terrain levels {self.levels!r}: an integer >= 1")
+        for name in ("tile_m", "cell_m", "tread_m", "wave_length_m"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"terrain {name} {getattr(self, name)!r}: a finite length > 0")
+        for name in ("max_step_m", "max_wave_m", "max_stone_m", "max_obstacle_m"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"terrain {name} {getattr(self, name)!r}: a finite length >= 0")
+        if not 0 <= self.max_slope_deg < 60:
+            raise ValueError(f"terrain max_slope_deg {self.max_slope_deg!r}: in [0, 60)")
+        cells = self.tile_m / self.cell_m
+        if abs(cells - round(cells)) > 1e-6 or round(cells) < 4:
+            raise ValueError(
+                f"terrain tile_m {self.tile_m} must be a whole number (>= 4) of cell_m {self.cell_m}"
+            )
+        waves = self.tile_m / self.wave_length_m
+        if abs(waves - round(waves)) > 1e-6:
+            raise ValueError(
+                f"terrain wave_length_m {self.wave_length_m} must divide tile_m {self.tile_m} (edges at 0)"
+            )
+
+    @property
+    def cells_per_tile(self) -> int:
+        return int(round(self.tile_m / self.cell_m))
+
+    @property
+    def half_size(self) -> tuple[float, float]:
+        """The field's x (types) and y (levels) half extents [m]."""
+        return len(self.types) * self.tile_m / 2, self.levels * self.tile_m / 2
+
+    def difficulty(self, level: int) -> float:
+        return (level + 1) / self.levels
+
+
+def tile_center(spec: TerrainSpec, type_index, level):
+    """World x, y [m] of the centre of tile (type_index, level); numpy or JAX, broadcasting -> (..., 2)."""
+    hx, hy = spec.half_size
+    x = -hx + (type_index + 0.5) * spec.tile_m
+    y = -hy + (level + 0.5) * spec.tile_m
+    xp = jnp if isinstance(x, jax.Array) or isinstance(y, jax.Array) else np
+    return xp.stack(xp.broadcast_arrays(xp.asarray(x, float), xp.asarray(y, float)), axis=-1)
+
+
+def _pyramid_r(x, y, half):
+    """Chebyshev distance from the tile's centre, clipped to the tile: 0 at the centre, half at the edge."""
+    return np.minimum(np.maximum(np.abs(x), np.abs(y)), half)
+
+
+def _tile_heights(spec: TerrainSpec, kind: str, level: int, x: np.ndarray, y: np.ndarray, rng) -> np.ndarray:
+    """Heights [m] of one tile at local coordinates x, y (its centre at 0, 0)."""
+    d = spec.difficulty(level)
+    half = spec.tile_m / 2
+    if kind == "flat":
+        return np.zeros_like(x)
+    if kind in ("slope_up", "slope_down"):
+        rise = math.tan(math.radians(spec.max_slope_deg * d)) * (half - _pyramid_r(x, y, half))
+        return -rise if kind == "slope_up" else rise
+    if kind in ("stairs_up", "stairs_down"):
+        # steps counted inwards from the edge: the outer ring (one tread wide) is at 0
+        steps = np.floor((half - _pyramid_r(x, y, half)) / spec.tread_m + 1e-9)
+        rise = spec.max_step_m * d * steps
+        return -rise if kind == "stairs_up" else rise
+    if kind == "waves":
+        k = 2 * math.pi / spec.wave_length_m
+        return spec.max_wave_m * d * np.sin(k * (x + half)) * np.sin(k * (y + half))
+    h = np.zeros_like(x)
+    area = spec.tile_m**2
+    if kind == "stones":
+        n = int(0.6 * area / 0.06**2)  # 0.6 stones per 6 x 6 cm, as the stone field
+        cx, cy = rng.uniform(-half, half, n), rng.uniform(-half, half, n)
+        rad, top = rng.uniform(0.015, 0.04, n), spec.max_stone_m * d * rng.uniform(0.2, 1.0, n)
+        for i in range(n):
+            near = (np.abs(x - cx[i]) <= rad[i]) & (np.abs(y - cy[i]) <= rad[i])
+            d2 = ((x[near] - cx[i]) ** 2 + (y[near] - cy[i]) ** 2) / rad[i] ** 2
+            h[near] = np.maximum(h[near], top[i] * np.sqrt(np.clip(1.0 - d2, 0.0, 1.0)))
+        return h
+    if kind == "obstacles":
+        n = int(area / 0.3**2)  # one box per 30 x 30 cm
+        cx, cy = rng.uniform(-half, half, n), rng.uniform(-half, half, n)
+        sx, sy = rng.uniform(0.025, 0.1, n), rng.uniform(0.025, 0.1, n)  # half sides
+        for i in range(n):
+            inside = (np.abs(x - cx[i]) <= sx[i]) & (np.abs(y - cy[i]) <= sy[i])
+            h[inside] = spec.max_obstacle_m * d
+        return h
+    raise AssertionError(kind)
+
+
+def tile_grid(spec: TerrainSpec) -> np.ndarray:
+    """(nrow, ncol) float64 heights [m] of the whole field on its height-field grid: rows along y
+    (levels), columns along x (types), spaced cell_m, the field centred on the world origin. A
+    sample on the border of two tiles belongs to the tile after it (x or y larger); the field's last
+    row and column belong to the last tile. Reproducible: the same spec gives the same array."""
+    n = spec.cells_per_tile
+    ncol, nrow = len(spec.types) * n + 1, spec.levels * n + 1
+    out = np.zeros((nrow, ncol))
+    local = np.arange(n + 1) * spec.cell_m - spec.tile_m / 2  # a tile's samples, both borders
+    x, y = np.meshgrid(local, local)  # (n + 1, n + 1): rows y, columns x
+    for t, kind in enumerate(spec.types):
+        for level in range(spec.levels):
+            rng = np.random.default_rng([spec.seed, t, level])
+            h = _tile_heights(spec, kind, level, x, y, rng)
+            # the tile owns its first n samples in each direction, the last tile its closing border too
+            r1 = n + 1 if level == spec.levels - 1 else n
+            c1 = n + 1 if t == len(spec.types) - 1 else n
+            out[level * n : level * n + r1, t * n : t * n + c1] = h[:r1, :c1]
+    return out
+
+
+def hfield_size(heights: np.ndarray, spec: TerrainSpec, base_m: float = 0.1) -> tuple[np.ndarray, float]:
+    """-> (MuJoCo hfield size (x half, y half, relief, base depth) [m], z of the height field geom [m]):
+    MuJoCo scales its normalised data [0, 1] by the relief and raises it from the geom's z, so the
+    geom sits at the lowest height and the relief spans to the highest (a flat field gets 1 mm)."""
+    lo, hi = float(heights.min()), float(heights.max())
+    relief = max(hi - lo, 1e-3)
+    hx, hy = spec.half_size
+    return np.array([hx, hy, relief, base_m]), lo
+
+
+def hfield_data(heights: np.ndarray) -> np.ndarray:
+    """Heights -> MuJoCo's normalised hfield_data, float32 in [0, 1], row-major (rows along y)."""
+    lo, hi = float(heights.min()), float(heights.max())
+    return ((heights - lo) / max(hi - lo, 1e-3)).astype(np.float32).ravel()
+
+
+def write_hfield_bin(path, heights: np.ndarray) -> None:
+    """MuJoCo's custom height-field file: int32 nrow, int32 ncol, then nrow * ncol float32 heights,
+    row-major (MuJoCo normalises them to [0, 1] when it loads the file)."""
+    nrow, ncol = heights.shape
+    with open(path, "wb") as f:
+        f.write(np.array([nrow, ncol], np.int32).tobytes())
+        f.write(heights.astype(np.float32).tobytes())
+
+
+# --- in JAX, per robot: where it starts and how its level moves ---
+
+
+def spawn_xy(spec: TerrainSpec, key, type_index, level, margin_m: float = 0.25):
+    """A uniform start position on tile (type_index, level), at least margin_m inside its edges ->
+    (..., 2) world x, y [m] (the caller puts the robot on terrain.ground_height there). jit/vmap."""
+    if not 0 <= margin_m < spec.tile_m / 2:
+        raise ValueError(f"spawn margin_m {margin_m!r}: in [0, tile_m / 2)")
+    shape = jnp.broadcast_shapes(jnp.shape(type_index), jnp.shape(level))
+    offset = jax.random.uniform(key, (*shape, 2), minval=-1.0, maxval=1.0) * (spec.tile_m / 2 - margin_m)
+    return tile_center(spec, jnp.asarray(type_index), jnp.asarray(level)) + offset
+
+
+def curriculum_levels(level, distance, commanded, key, levels: int, up: float = 0.8, down: float = 0.5):
+    """legged_gym's game-inspired curriculum, per robot at the end of its episode. level (...,) int;
+    distance: how far it went [m]; commanded: how far its command asked [m] -> (...,) new level.
+    Up one when distance >= up * commanded; down one when distance < down * commanded; kept
+    otherwise. A robot that goes up from the top level is sent to a uniformly random level (so the
+    top rows keep being trained without the rest being forgotten); nothing goes below 0. A command
+    asking for no distance (standing) counts as covered (commanded <= 0: up)."""
+    if not 0 <= down <= up:
+        raise ValueError(f"curriculum thresholds down {down!r} <= up {up!r}, both >= 0")
+    level = jnp.asarray(level)
+    covered = (distance >= up * commanded) | (commanded <= 0)
+    short = (distance < down * commanded) & ~covered
+    new = level + covered.astype(level.dtype) - short.astype(level.dtype)
+    random_level = jax.random.randint(key, level.shape, 0, levels, dtype=level.dtype)
+    return jnp.where(new >= levels, random_level, jnp.maximum(new, 0))
