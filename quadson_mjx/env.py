@@ -31,14 +31,22 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
-from quadson_mjx import commands, gait, obs_spec, rewards, sensors, terrain
+from quadson_mjx import commands, gait, obs_spec, rewards, sensors, terrain, terrain_tiles
 from quadson_mjx.config import freeze
-from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_added_keys
-from quadson_mjx.env_model import BASE_GEOM, base_bottom_points, name_ids, put_model, training_model
-from quadson_mjx.quat import quat_rotate
+from quadson_mjx.env_config import check_env_config, env_config, env_gait, tile_spec, with_added_keys
+from quadson_mjx.env_model import (
+    BASE_GEOM,
+    base_bottom_points,
+    home_contact_points,
+    name_ids,
+    put_model,
+    training_model,
+)
+from quadson_mjx.quat import quat_mul, quat_rotate
 from quadson_mjx.robots import get_robot
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no state of either robot is this fast; treat it as a blown-up solve
+SPAWN_CLEARANCE_M = 0.005  # a spawn on the tiled ground starts this far above its lowest contact (at most)
 
 
 class _PhysicsState(NamedTuple):
@@ -55,6 +63,10 @@ class LocomotionEnv(Env):
     # info entries that restart from the first state when an episode ends (see wrappers.py; the
     # "sensors" observation adds its encoder and history buffers: `restart_info`)
     RESTART_INFO = ("gait_progress", "episode_time", "last_ctrl", "foot_targets")
+    # info entries of the tiled ground (terrain="tiles"), per robot: its tile column and row, the
+    # distance it covered along its commands and the distance they asked for in this episode [m],
+    # and the result of its last finished episode (-1 none yet, 0 failed, 1 success; wrappers.py)
+    TILE_INFO = ("tile_type", "tile_level", "tile_progress_m", "tile_commanded_m", "tile_result")
     SENSOR_RESTART_INFO = ("last_encoders", "obs_history")
     # per-step metrics besides the reward terms; brax's evaluator sums each over an episode
     STEP_METRICS = (
@@ -81,6 +93,7 @@ class LocomotionEnv(Env):
         self._mj_model = training_model(robot, cfg)
         self.sys = put_model(self._mj_model, cfg.impl)
         self._field = terrain.heightfield(self._mj_model)
+        self._tiles = tile_spec(cfg) if cfg.terrain == "tiles" else None
         base_geom = int(name_ids(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, [BASE_GEOM])[0])
         if not np.allclose(self._mj_model.geom_quat[base_geom], (1, 0, 0, 0)):
             raise ValueError("base_collision must be aligned with the base body")
@@ -118,6 +131,12 @@ class LocomotionEnv(Env):
         key = int(name_ids(m, mujoco.mjtObj.mjOBJ_KEY, [robot.home_keyframe])[0])
         self._home_qpos = jnp.asarray(m.key_qpos[key])
         self._home_ctrl = jnp.asarray(m.key_ctrl[key])
+        points, radius = home_contact_points(
+            m, key, name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()), self._base_bottom
+        )
+        self._contact_points = jnp.asarray(points, jnp.float32)  # (P, 3) from the base origin [m]
+        self._contact_radius = jnp.asarray(radius, jnp.float32)
+        self._spawn_spheres, self._spawn_points = np.flatnonzero(radius > 0), np.flatnonzero(radius == 0)
         self._home_feet = jnp.asarray(robot.home_feet, jnp.float32)  # (4, 3) gait frames [m]
         self._gait = env_gait(cfg)
         self._seed_speed = float(gait.seed_speed(self._gait))
@@ -250,9 +269,57 @@ class LocomotionEnv(Env):
             info.update(sensors.episode_sensor_errors(cfg, timestep, jax.random.fold_in(rng, 7)))
         return info
 
+    @property
+    def tiles(self) -> terrain_tiles.TerrainSpec | None:
+        """The tiled ground (terrain="tiles"), else None."""
+        return self._tiles
+
     def reset(self, rng) -> State:
-        k_info, k_yaw = jax.random.split(rng)
-        qpos = self._home_qpos
+        """A new episode at the home pose: at the origin, or on the tiled ground on a random tile
+        column and a level in [0, tiles.max_init_level] (reset_on_tile)."""
+        if self._tiles is None:
+            k_info, _ = jax.random.split(rng)
+            return self._start(self._home_qpos, k_info)
+        k_type, k_level, k = jax.random.split(rng, 3)
+        tile_type = jax.random.randint(k_type, (), 0, len(self._tiles.types))
+        level = jax.random.randint(k_level, (), 0, self._config.tiles.max_init_level + 1)
+        return self.reset_on_tile(k, tile_type, level)
+
+    def reset_on_tile(self, rng, tile_type, level) -> State:
+        """A new episode on tile (tile_type, level) of the tiled ground: the home pose at a uniform
+        place on the tile (terrain_tiles.spawn_xy) with a uniform heading, lowered or raised until
+        its lowest contact point (a foot sphere or the base box) is SPAWN_CLEARANCE_M above the
+        ground under it (terrain_tiles.spawn_lift). The wrappers' auto-reset calls it with the
+        curriculum's next level."""
+        if self._tiles is None:
+            raise ValueError("reset_on_tile needs the tiled ground (env.terrain=tiles)")
+        k_xy, k_yaw, k_info = jax.random.split(rng, 3)
+        tile_type, level = jnp.asarray(tile_type, jnp.int32), jnp.asarray(level, jnp.int32)
+        xy = terrain_tiles.spawn_xy(self._tiles, k_xy, tile_type, level, self._config.tiles.spawn_margin_m)
+        yaw = jax.random.uniform(k_yaw, (), minval=-jnp.pi, maxval=jnp.pi)
+        c, s = jnp.cos(yaw), jnp.sin(yaw)
+        p = self._contact_points
+        points_xy = xy + jnp.stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]], axis=-1)
+        home_z = self._home_qpos[2]
+        f, b = self._spawn_spheres, self._spawn_points  # spheres on a disc of samples, points once
+        lift = jnp.maximum(
+            terrain_tiles.spawn_lift(self._field, points_xy[f], home_z + p[f, 2], self._contact_radius[f]),
+            terrain_tiles.spawn_lift(self._field, points_xy[b], home_z + p[b, 2], self._contact_radius[b], 1),
+        )
+        turn = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
+        qpos = self._home_qpos.at[:2].set(xy).at[2].set(home_z + lift + SPAWN_CLEARANCE_M)
+        qpos = qpos.at[3:7].set(quat_mul(turn, self._home_qpos[3:7]))
+        state = self._start(qpos, k_info)
+        state.info.update(
+            tile_type=tile_type,
+            tile_level=level,
+            tile_progress_m=jnp.zeros(()),
+            tile_commanded_m=jnp.zeros(()),
+            tile_result=jnp.full((), -1.0),
+        )
+        return state
+
+    def _start(self, qpos, k_info) -> State:
         data = mjx.make_data(self.sys)
         data = data.replace(qpos=qpos, qvel=jnp.zeros(self.sys.nv), ctrl=self._home_ctrl)
         # Positions only (body, geom and site frames): a step recomputes everything else from qpos,
@@ -328,6 +395,13 @@ class LocomotionEnv(Env):
         info["last_action"] = action
         info["last_ctrl"] = ctrl
         info["foot_targets"] = targets
+        if self._tiles is not None:  # the curriculum's measure, along the command of this step
+            cmd_speed = jnp.linalg.norm(info["command"][:2])
+            along = jnp.dot(lin_vel[:2], info["command"][:2]) / jnp.maximum(cmd_speed, 1e-6)
+            info["tile_progress_m"] = (
+                info["tile_progress_m"] + jnp.clip(along, 0.0, cmd_speed) * self._ctrl_dt
+            )
+            info["tile_commanded_m"] = info["tile_commanded_m"] + cmd_speed * self._ctrl_dt
         if cfg.command_tracking and cfg.command_resample_s[1] > 0:  # a new command mid-episode
             info["command"], info["command_timer"], info["rng"] = commands.resample(
                 cfg, self._seed_speed, info["command"], info["command_timer"] - self._ctrl_dt, info["rng"]

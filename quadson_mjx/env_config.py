@@ -18,6 +18,33 @@ import mujoco
 from quadson_mjx.config import Rule, rule_for
 from quadson_mjx.gait import GaitParams
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS, get_robot
+from quadson_mjx.terrain_tiles import TILE_TYPES, TerrainSpec
+
+# The env's grounds: the robots' scene files (a plane, the stone field) and "tiles", the tiled
+# training ground of quadson_mjx.terrain_tiles built from the `tiles` keys.
+ENV_TERRAINS: tuple[str, ...] = (*TERRAINS, "tiles")
+
+# The tiled ground and its curriculum (terrain="tiles"; the keys are read by no other terrain).
+# types: comma-separated tile types, one column each (terrain_tiles.TILE_TYPES); levels: rows of
+# rising difficulty; border_m: flat ground around them (a robot on an outer tile can walk off it
+# before the field's edge ends its episode, termination.off_field_margin_m); a robot keeps its column and starts at a level drawn in [0, max_init_level]
+# (legged_gym starts at 5 of 10 rows; 4 here: the rows before the 15-degree slopes and 2.4 cm
+# steps), with a random heading, anywhere on its tile at least spawn_margin_m inside the edges. With
+# curriculum, at every episode end its level goes up one when it covered curriculum_up of the
+# distance its commands asked for and did not fall, down one when it fell or covered less than
+# curriculum_down (terrain_tiles.curriculum_levels).
+TILES = {
+    "types": ",".join(TILE_TYPES),
+    "levels": 10,
+    "tile_m": 2.0,
+    "border_m": 1.0,
+    "seed": 0,
+    "max_init_level": 4,
+    "spawn_margin_m": 0.25,
+    "curriculum": True,
+    "curriculum_up": 0.8,
+    "curriculum_down": 0.5,
+}
 
 SEED_EPISODE_S = 4500 / 240.0  # seed 000: 4500 PyBullet steps at 240 Hz = 18.75 s
 
@@ -132,6 +159,7 @@ ENV_KEYS_ADDED = {
     "obs_history": 1,
     "asymmetric_critic": False,
     "fivebar_model": "full",
+    **{f"tiles.{k}": v for k, v in TILES.items()},
 }
 
 # What the actor observes (obs_spec): "sensors", the robot's own sensors only (sensor_observation);
@@ -203,7 +231,8 @@ def env_config(
     command_tracking: sample (vx, vy, yaw rate) per episode and reward tracking it (observation +3).
     randomize: domain randomization of friction, masses, motor strength, latency, sensor noise.
     pushes: random horizontal velocity kicks to the base.
-    terrain: "flat" or "rough" (the heightfield scene).
+    terrain: "flat", "rough" (the stone field) or "tiles" (the tiled ground with its curriculum,
+        the `tiles` keys; ENV_TERRAINS).
     base_terrain_contact: False lets only the feet touch the ground (see the key's comment).
     joint_limits: False drops the motor joints' limit rows from the solver (see the key's comment).
     joystick: the joystick recipe (implies command_tracking): commands resampled every 4-8 s, 10 %
@@ -217,8 +246,8 @@ def env_config(
     command_tracking = command_tracking or joystick
     spec = get_robot(robot)
     gait = spec.default_gait if gait is None else gait
-    if terrain not in TERRAINS:
-        raise ValueError(f"terrain must be one of {TERRAINS}, got {terrain!r}")
+    if terrain not in ENV_TERRAINS:
+        raise ValueError(f"terrain must be one of {ENV_TERRAINS}, got {terrain!r}")
     if gait not in spec.gait_names:
         raise ValueError(f"unknown gait {gait!r} for {robot}; choose from {spec.gait_names}")
     if gait_recipe and (robot != "quadson" or gait not in GAIT_RECIPES):
@@ -320,6 +349,7 @@ def env_config(
             },
             "pushes": pushes,
             "push": {"interval_s": (2.0, 4.0), "speed_mps": (0.1, 0.4)},
+            "tiles": dict(TILES),
         }
     )
     if joystick:
@@ -443,7 +473,41 @@ ENV_RULES: dict[str, Rule] = {
     "pushes": Rule("bool"),
     "push.interval_s": Rule("pair", 0.0, 3600.0, _S, lo_open=True),
     "push.speed_mps": Rule("pair", 0.0, 5.0, "m/s"),
+    "tiles.types": Rule("name"),  # and each a known tile type, once
+    "tiles.levels": Rule("int", 1, 100, "rows"),
+    "tiles.tile_m": Rule("number", 0.5, 20.0, _M),  # and a whole number of 2 cm cells
+    "tiles.border_m": Rule("number", 0.0, 20.0, _M),  # and a whole number of 2 cm cells
+    "tiles.seed": Rule("int", 0, 2**31 - 1),
+    "tiles.max_init_level": Rule("int", 0, 99, "(a level)"),  # and < levels
+    "tiles.spawn_margin_m": Rule("number", 0.0, 10.0, _M),  # and < tile_m / 2
+    "tiles.curriculum": Rule("bool"),
+    "tiles.curriculum_up": Rule("number", 0.0, 10.0, "(of the commanded distance)"),
+    "tiles.curriculum_down": Rule("number", 0.0, 10.0, "(of the commanded distance)"),  # <= up
 }
+
+
+def tile_spec(cfg) -> TerrainSpec:
+    """The terrain_tiles.TerrainSpec of an env config's `tiles` keys (terrain="tiles"); ValueError
+    naming the key for a value the generator refuses."""
+    t = cfg.tiles
+    types = tuple(x.strip() for x in t.types.split(","))
+    try:
+        spec = TerrainSpec(types=types, levels=t.levels, tile_m=t.tile_m, seed=t.seed, border_m=t.border_m)
+    except ValueError as e:
+        raise ValueError(f"env.tiles: {e}") from None
+    if t.max_init_level >= t.levels:
+        raise ValueError(
+            f"env.tiles.max_init_level must be < env.tiles.levels ({t.levels}), got {t.max_init_level}"
+        )
+    if t.spawn_margin_m >= t.tile_m / 2:
+        raise ValueError(
+            f"env.tiles.spawn_margin_m must be < tile_m / 2 ({t.tile_m / 2} m), got {t.spawn_margin_m}"
+        )
+    if t.curriculum_down > t.curriculum_up:
+        raise ValueError(
+            f"env.tiles.curriculum_down ({t.curriculum_down}) must be <= env.tiles.curriculum_up ({t.curriculum_up})"
+        )
+    return spec
 
 
 @functools.cache
@@ -478,8 +542,10 @@ def check_env_config(cfg) -> None:
     if robot not in ROBOT_NAMES:
         raise ValueError(f"env.robot is {robot!r}; choose from {list(ROBOT_NAMES)}")
     spec = get_robot(robot)
-    if cfg.terrain not in TERRAINS:
-        raise ValueError(f"env.terrain is {cfg.terrain!r}; choose from {list(TERRAINS)}")
+    if cfg.terrain not in ENV_TERRAINS:
+        raise ValueError(f"env.terrain is {cfg.terrain!r}; choose from {list(ENV_TERRAINS)}")
+    if cfg.terrain == "tiles":
+        tile_spec(cfg)
     if cfg.gait not in spec.gait_names:
         raise ValueError(f"env.gait is {cfg.gait!r}; {robot} has {list(spec.gait_names)}")
     fivebar = cfg.get("fivebar_model", "full")

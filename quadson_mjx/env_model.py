@@ -1,6 +1,7 @@
 """The MuJoCo model an environment steps: the robot's scene with the env config's physics options.
 
-`training_model` loads the robot's flat or rough scene and applies what the config chooses for
+`training_model` loads the robot's flat or rough scene, or builds the tiled ground (`tiles_model`),
+and applies what the config chooses for
 speed (no sensor evaluation, feet-only ground contact, no joint-limit rows) and the solver options
 (cone, solver, mass-matrix storage); `put_model` hands it to MJX with the chosen implementation.
 `name_ids` looks names up once (Python never hard-codes a model index).
@@ -12,8 +13,9 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from quadson_mjx import warp_notice
-from quadson_mjx.env_config import CONES, JACOBIANS, SOLVERS
+from quadson_mjx import terrain_tiles, warp_notice
+from quadson_mjx.env_config import CONES, JACOBIANS, SOLVERS, tile_spec
+from quadson_mjx.terrain import FLOOR_GEOM
 
 BASE_GEOM = "base_collision"  # the base's box, every robot's
 
@@ -29,7 +31,12 @@ def name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray
 
 def training_model(robot, cfg) -> mujoco.MjModel:
     """robot: quadson_mjx.robots.Robot; cfg: an env config -> a fresh MjModel of its terrain's scene."""
-    m = robot.load_model(cfg.terrain, cfg.get("fivebar_model", "full"))
+    variant = cfg.get("fivebar_model", "full")
+    m = (
+        tiles_model(robot, variant, tile_spec(cfg))
+        if cfg.terrain == "tiles"
+        else robot.load_model(cfg.terrain, variant)
+    )
     # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
     # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
@@ -45,12 +52,64 @@ def training_model(robot, cfg) -> mujoco.MjModel:
     return m
 
 
+def tiles_model(robot, variant: str, spec: terrain_tiles.TerrainSpec) -> mujoco.MjModel:
+    """The robot over the tiled ground of `spec` (terrain_tiles.tile_grid): its stone-field scene
+    (the same floor geom, contact and materials) with the height field's samples, extent and relief
+    replaced, the floor geom lowered to the field's lowest point. Built in memory (no file)."""
+    heights = terrain_tiles.tile_grid(spec)
+    size, lowest = terrain_tiles.hfield_size(heights, spec)
+    mj_spec = mujoco.MjSpec.from_file(str(robot.scene_path("rough", variant)))
+    floor = mj_spec.geom(FLOOR_GEOM)
+    field = mj_spec.hfield(floor.hfieldname)
+    field.file = ""
+    field.nrow, field.ncol = heights.shape
+    field.size = size
+    field.userdata = terrain_tiles.hfield_data(heights).tolist()
+    floor.pos = [0.0, 0.0, lowest]
+    return mj_spec.compile()
+
+
+def scene_xml_text(robot, cfg) -> str:
+    """The robot and scene MJCF of an env config as text (stored beside checkpoints and rollouts):
+    the robot's scene file, or for the tiled ground its stone-field scene, whose height field
+    `tiles_model` replaces by the env config's `tiles` (stored beside it)."""
+    variant = cfg.get("fivebar_model", "full")
+    if cfg.terrain != "tiles":
+        return robot.model_xml_text(cfg.terrain, variant)
+    note = (
+        "<!-- terrain=tiles: the height field below is replaced by quadson_mjx.terrain_tiles.tile_grid of "
+        "the env config's tiles keys (env_model.tiles_model) -->\n"
+    )
+    return note + robot.model_xml_text("rough", variant)
+
+
 def put_model(m: mujoco.MjModel, impl: str):
     """mjx.put_model with the config's implementation; "warp" needs warp-lang and mujoco_warp, and
     their import error is reported here, where it matters, not at every import of mujoco.mjx."""
     if impl == "warp":
         warp_notice.require_warp()
     return mjx.put_model(m, impl=impl)
+
+
+def home_contact_points(
+    m: mujoco.MjModel, key: int, foot_geoms, base_bottom
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the robot at keyframe `key` could touch the ground, relative to its base origin, for
+    placing it over uneven ground (terrain_tiles.spawn_lift) -> (points (P, 3) world axes [m]: the
+    foot spheres' centres, then the base box's bottom points base_bottom (B, 3) base frame; radius
+    (P,): the foot spheres', 0 for the box's points)."""
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, key)
+    mujoco.mj_kinematics(m, d)
+    base = np.asarray(d.qpos[:3])
+    feet = np.asarray(foot_geoms)
+    radius = m.geom_size[feet, 0]
+    foot_centres = d.geom_xpos[feet] - base
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, d.qpos[3:7])
+    box = np.asarray(base_bottom) @ rot.reshape(3, 3).T
+    points = np.concatenate([foot_centres, box])
+    return points, np.concatenate([radius, np.zeros(len(box))])
 
 
 def base_bottom_points(half_size, n_x: int = 5, n_y: int = 3) -> np.ndarray:

@@ -11,6 +11,7 @@ import numpy as np
 
 from quadson_mjx import rollout
 from quadson_mjx.config import to_json
+from quadson_mjx.env_model import scene_xml_text
 from quadson_mjx.foxglove_mcap import RolloutWriter, step_time_ns
 from quadson_mjx.provenance import versions
 
@@ -61,7 +62,7 @@ def record(
         robot = env.robot
         w.attach(
             f"{robot.name}.xml",
-            robot.model_xml_text(env.config.terrain, env.config.get("fivebar_model", "full")).encode(),
+            scene_xml_text(robot, env.config).encode(),
             "application/xml",
         )
         w.log(0, "info", f"start: {controller.name}, {n_envs} env(s), {n_steps} steps of {ctrl_dt} s")

@@ -86,13 +86,17 @@ def task_name(robot: str, env_preset: str, terrain: str, gait: str | None = None
 
 
 def _flag_sets() -> dict[str, dict]:
-    """name -> the flags of every registered task: robot x env preset x terrain, then the gait recipes."""
+    """name -> the flags of every registered task: robot x env preset x terrain (the robots' scenes),
+    Quadson's joystick on the tiled ground, then the gait recipes."""
     out = {}
     for robot in ROBOT_NAMES:
         for preset in ENV_PRESETS:
             for terrain in TERRAINS:
                 flags = {"robot": robot, "env_preset": preset, "terrain": terrain}
                 out[task_name(**flags)] = flags
+    # the tiled ground with its curriculum (env_config.TILES), for the sensor-only joystick policy
+    flags = {"robot": "quadson", "env_preset": "robust", "terrain": "tiles"}
+    out[task_name(**flags)] = flags
     for gait in GAIT_RECIPES:  # Quadson's; env_config refuses a recipe for another robot
         flags = {"robot": "quadson", "env_preset": "seed", "terrain": "flat", "gait": gait}
         out[task_name(**flags)] = flags

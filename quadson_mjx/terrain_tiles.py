@@ -32,6 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from quadson_mjx import terrain
+
 TILE_TYPES = (
     "flat",
     "stones",
@@ -61,6 +63,7 @@ class TerrainSpec:
     max_stone_m: float = 0.03
     max_obstacle_m: float = 0.03
     seed: int = 0
+    border_m: float = 0.0  # flat ground around the tiles, so a robot on an outer tile can walk off it
 
     def __post_init__(self):
         unknown = [t for t in self.types if t not in TILE_TYPES]
@@ -81,6 +84,11 @@ class TerrainSpec:
             raise ValueError(
                 f"terrain tile_m {self.tile_m} must be a whole number (>= 4) of cell_m {self.cell_m}"
             )
+        border = self.border_m / self.cell_m
+        if not (math.isfinite(self.border_m) and self.border_m >= 0 and abs(border - round(border)) < 1e-6):
+            raise ValueError(
+                f"terrain border_m {self.border_m!r}: a whole number (>= 0) of cell_m {self.cell_m}"
+            )
         waves = self.tile_m / self.wave_length_m
         if abs(waves - round(waves)) > 1e-6:
             raise ValueError(
@@ -92,9 +100,15 @@ class TerrainSpec:
         return int(round(self.tile_m / self.cell_m))
 
     @property
-    def half_size(self) -> tuple[float, float]:
-        """The field's x (types) and y (levels) half extents [m]."""
+    def tiles_half_size(self) -> tuple[float, float]:
+        """The tiles' x (types) and y (levels) half extents [m], centred on the world origin."""
         return len(self.types) * self.tile_m / 2, self.levels * self.tile_m / 2
+
+    @property
+    def half_size(self) -> tuple[float, float]:
+        """The field's x and y half extents [m]: the tiles and the flat border around them."""
+        hx, hy = self.tiles_half_size
+        return hx + self.border_m, hy + self.border_m
 
     def difficulty(self, level: int) -> float:
         return (level + 1) / self.levels
@@ -102,7 +116,7 @@ class TerrainSpec:
 
 def tile_center(spec: TerrainSpec, type_index, level):
     """World x, y [m] of the centre of tile (type_index, level); numpy or JAX, broadcasting -> (..., 2)."""
-    hx, hy = spec.half_size
+    hx, hy = spec.tiles_half_size
     x = -hx + (type_index + 0.5) * spec.tile_m
     y = -hy + (level + 0.5) * spec.tile_m
     xp = jnp if isinstance(x, jax.Array) or isinstance(y, jax.Array) else np
@@ -155,7 +169,8 @@ def _tile_heights(spec: TerrainSpec, kind: str, level: int, x: np.ndarray, y: np
 
 def tile_grid(spec: TerrainSpec) -> np.ndarray:
     """(nrow, ncol) float64 heights [m] of the whole field on its height-field grid: rows along y
-    (levels), columns along x (types), spaced cell_m, the field centred on the world origin. A
+    (levels), columns along x (types), spaced cell_m, the field centred on the world origin, then
+    border_m of flat ground (height 0) on every side. A
     sample on the border of two tiles belongs to the tile after it (x or y larger); the field's last
     row and column belong to the last tile. Reproducible: the same spec gives the same array."""
     n = spec.cells_per_tile
@@ -171,7 +186,7 @@ def tile_grid(spec: TerrainSpec) -> np.ndarray:
             r1 = n + 1 if level == spec.levels - 1 else n
             c1 = n + 1 if t == len(spec.types) - 1 else n
             out[level * n : level * n + r1, t * n : t * n + c1] = h[:r1, :c1]
-    return out
+    return np.pad(out, int(round(spec.border_m / spec.cell_m)))  # the flat border, at 0
 
 
 def hfield_size(heights: np.ndarray, spec: TerrainSpec, base_m: float = 0.1) -> tuple[np.ndarray, float]:
@@ -212,18 +227,85 @@ def spawn_xy(spec: TerrainSpec, key, type_index, level, margin_m: float = 0.25):
     return tile_center(spec, jnp.asarray(type_index), jnp.asarray(level)) + offset
 
 
-def curriculum_levels(level, distance, commanded, key, levels: int, up: float = 0.8, down: float = 0.5):
+def curriculum_levels(
+    level, distance, commanded, key, levels: int, up: float = 0.8, down: float = 0.5, fell=None
+):
     """legged_gym's game-inspired curriculum, per robot at the end of its episode. level (...,) int;
-    distance: how far it went [m]; commanded: how far its command asked [m] -> (...,) new level.
-    Up one when distance >= up * commanded; down one when distance < down * commanded; kept
-    otherwise. A robot that goes up from the top level is sent to a uniformly random level (so the
-    top rows keep being trained without the rest being forgotten); nothing goes below 0. A command
-    asking for no distance (standing) counts as covered (commanded <= 0: up)."""
+    distance: how far it went [m]; commanded: how far its command asked [m]; fell (...,) bool or
+    None -> (...,) new level.
+    Up one when distance >= up * commanded; down one when distance < down * commanded or it fell;
+    kept otherwise. A robot that goes up from the top level is sent to a uniformly random level (so
+    the top rows keep being trained without the rest being forgotten); nothing goes below 0. A
+    command asking for no distance (standing) counts as covered (commanded <= 0: up) unless it fell."""
     if not 0 <= down <= up:
         raise ValueError(f"curriculum thresholds down {down!r} <= up {up!r}, both >= 0")
     level = jnp.asarray(level)
-    covered = (distance >= up * commanded) | (commanded <= 0)
-    short = (distance < down * commanded) & ~covered
+    fell = jnp.zeros(level.shape, bool) if fell is None else jnp.asarray(fell, bool)
+    covered = ((distance >= up * commanded) | (commanded <= 0)) & ~fell
+    short = ((distance < down * commanded) & ~covered) | fell
     new = level + covered.astype(level.dtype) - short.astype(level.dtype)
     random_level = jax.random.randint(key, level.shape, 0, levels, dtype=level.dtype)
     return jnp.where(new >= levels, random_level, jnp.maximum(new, 0))
+
+
+def spawn_lift(field, xy, z, radius, disc: int = 13):
+    """How far to raise a trial pose so that its lowest sphere or point just clears the ground [m]
+    (negative: lower it; a pose above a pit comes down onto its floor).
+
+    xy (..., P, 2), z (..., P): world positions of P sphere centres of the robot at the trial pose
+    (a foot) or points (radius 0: a corner of the base box); radius (P,) [m]. The ground is sampled
+    on a disc x disc grid over each sphere's footprint, against the sphere's lower surface there
+    (z - sqrt(r^2 - rho^2) at rho from its centre): a stone narrower than the sphere or a step's
+    edge beside its lowest point is met where it touches. With the default 13 x 13 grid the samples
+    are r / 6 apart; the field's surface between them (the piecewise-linear terrain.ground_height,
+    MuJoCo's surface) can sit above them by at most its slope times that spacing: 5 mm on a 4 cm
+    riser of one 2 cm cell under Quadson's 1.5 cm foot, which the environment's SPAWN_CLEARANCE_M covers
+    (tested against MuJoCo's collision on every tile type). jit/vmap."""
+    radius = jnp.asarray(radius)
+    u = jnp.linspace(-1.0, 1.0, disc) if disc > 1 else jnp.zeros(1)
+    ux, uy = jnp.meshgrid(u, u)
+    ux, uy = ux.ravel(), uy.ravel()
+    inside = ux**2 + uy**2 <= 1.0 + 1e-9  # (S,) on the unit disc
+    offsets = jnp.stack([ux, uy], axis=-1)  # (S, 2)
+    samples = xy[..., None, :] + radius[:, None, None] * offsets  # (..., P, S, 2)
+    drop = radius[:, None] * jnp.sqrt(jnp.clip(1.0 - ux**2 - uy**2, 0.0, 1.0))  # (P, S)
+    clearance = z[..., None] - drop - terrain.ground_height(field, samples)  # (..., P, S)
+    clearance = jnp.where(inside, clearance, jnp.inf)
+    return -jnp.min(clearance, axis=(-2, -1))
+
+
+def curriculum_summary(spec: TerrainSpec, tile_type, level, result) -> dict[str, float]:
+    """The curriculum's state over a batch of robots, per tile type, for the training log.
+
+    tile_type, level (N,) int; result (N,): each robot's last finished episode (-1 none yet, 0
+    failed, 1 success) -> {"<type>/robots": how many train on it, "<type>/level_mean": their mean
+    level, "<type>/level_max_share": the share at the top level, "<type>/success": the share of
+    their last episodes that succeeded, "<type>/episodes": how many of them have finished one}; a
+    share or mean of nobody is left out (no NaN in the log)."""
+    tile_type, level, result = (np.asarray(a).reshape(-1) for a in (tile_type, level, result))
+    out: dict[str, float] = {}
+    for t, kind in enumerate(spec.types):
+        mine = tile_type == t
+        done = mine & (result >= 0)
+        out[f"{kind}/robots"] = float(mine.sum())
+        out[f"{kind}/episodes"] = float(done.sum())
+        if mine.any():
+            out[f"{kind}/level_mean"] = float(level[mine].mean())
+            out[f"{kind}/level_max_share"] = float((level[mine] == spec.levels - 1).mean())
+        if done.any():
+            out[f"{kind}/success"] = float((result[done] > 0.5).mean())
+    return out
+
+
+def curriculum_line(spec: TerrainSpec, summary: dict[str, float]) -> str:
+    """One console line of curriculum_summary: each type's mean level and last-episode success."""
+    parts = []
+    for kind in spec.types:
+        level = summary.get(f"{kind}/level_mean")
+        success = summary.get(f"{kind}/success")
+        parts.append(
+            f"{kind} "
+            + ("-" if level is None else f"L{level:.1f}")
+            + ("" if success is None else f" {100 * success:.0f}%")
+        )
+    return "curriculum (mean level, success): " + ", ".join(parts)

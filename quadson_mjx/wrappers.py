@@ -5,6 +5,14 @@ episode the environment ends at the stone field's edge (`metrics["off_field"]`) 
 brax's own AutoResetWrapper restarts a finished episode from the batch's first state, which would
 give an environment the same velocity command forever. Ours restarts from the first physics state
 (cheap: no reset computed every step) but draws new episode randomness with `env.episode_info`.
+
+On the tiled ground (env.terrain="tiles") an episode restarts somewhere else: every step, the robots
+whose episode ended get their next level from the curriculum (terrain_tiles.curriculum_levels on the
+distance they covered along their commands against the distance the commands asked for over the
+whole episode, so a fall counts the time it cut off) and a fresh start on their tile column at that
+level (`env.reset_on_tile`, computed for every robot and kept where done: a kinematics pass and an
+observation, no physics step). `info["tile_result"]` keeps each robot's last finished episode:
+1 a success (no fall and at least SUCCESS_SHARE of the commanded distance), 0 not.
 """
 
 from __future__ import annotations
@@ -14,9 +22,19 @@ import jax.numpy as jnp
 from brax.envs.base import State, Wrapper
 from brax.envs.wrappers import training as brax_training
 
+from quadson_mjx import terrain_tiles
+
+SUCCESS_SHARE = 0.8  # a tile episode succeeds with no fall and this share of its commanded distance
+
 
 class ResamplingAutoReset(Wrapper):
-    """Resets done environments to their first physics state with fresh per-episode randomness."""
+    """Resets done environments to their first physics state with fresh per-episode randomness (on
+    the tiled ground: to a fresh start on their tile at the curriculum's level). episode_length:
+    control steps of an episode (the tiled ground's commanded distance counts to its end)."""
+
+    def __init__(self, env, episode_length: int | None = None):
+        super().__init__(env)
+        self._episode_length = episode_length
 
     def reset(self, rng: jax.Array) -> State:
         state = self.env.reset(rng)
@@ -42,6 +60,8 @@ class ResamplingAutoReset(Wrapper):
             mask = jnp.reshape(done, done.shape + (1,) * (current.ndim - done.ndim))
             return jnp.where(mask, first, current)
 
+        if self.env.unwrapped.tiles is not None:
+            return self._respawn_on_tiles(state, done, where_done)
         keys = jax.vmap(jax.random.split)(state.info["reset_rng"])
         fresh = jax.vmap(self.env.unwrapped.episode_info)(keys[:, 0])
         info = dict(state.info)
@@ -57,6 +77,69 @@ class ResamplingAutoReset(Wrapper):
         obs = self.env.unwrapped.with_command(obs, info["command"])
         return state.replace(pipeline_state=pipeline_state, obs=obs, info=info)
 
+    def reset_on_tiles(self, rng: jax.Array, tile_type, level) -> State:
+        """reset (rng: (N, 2) keys) with every robot on the tile the arrays tile_type and level
+        (N,) give instead of a random one (an evaluation per tile, a benchmark per type)."""
+        state = self.reset(rng)
+        n = rng.shape[0]
+        tile_type = jnp.broadcast_to(jnp.asarray(tile_type, jnp.int32), (n,))
+        level = jnp.broadcast_to(jnp.asarray(level, jnp.int32), (n,))
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, 2))(rng)
+        fresh = self._vmap_unwrapped(lambda e, k, t, lv: e.reset_on_tile(k, t, lv), keys, tile_type, level)
+        info = {**state.info, **fresh.info}
+        info["first_pipeline_state"] = fresh.pipeline_state
+        info["first_obs"] = fresh.obs
+        return state.replace(pipeline_state=fresh.pipeline_state, obs=fresh.obs, info=info)
+
+    def _respawn_on_tiles(self, state: State, done, where_done) -> State:
+        env = self.env.unwrapped
+        cfg = env.config.tiles
+        info = dict(state.info)
+        keys = jax.vmap(lambda k: jax.random.split(k, 3))(info["reset_rng"])
+        cmd_speed = jnp.linalg.norm(info["command"][:, :2], axis=-1)
+        left = self._episode_length - info["steps"] if self._episode_length else 0.0
+        commanded = info["tile_commanded_m"] + cmd_speed * jnp.maximum(left, 0.0) * env.ctrl_dt
+        progress = info["tile_progress_m"]
+        fell = state.metrics["fall"] > 0
+        level = info["tile_level"]
+        if cfg.curriculum:
+            level = terrain_tiles.curriculum_levels(
+                level,
+                progress,
+                commanded,
+                keys[0, 2],
+                env.tiles.levels,
+                cfg.curriculum_up,
+                cfg.curriculum_down,
+                fell,
+            )
+        success = ~fell & ((progress >= SUCCESS_SHARE * commanded) | (commanded <= 0))
+        fresh = self._vmap_unwrapped(
+            lambda e, k, t, lv: e.reset_on_tile(k, t, lv), keys[:, 0], info["tile_type"], level
+        )
+        for k, v in fresh.info.items():
+            info[k] = where_done(v, info[k])
+        info["tile_result"] = jnp.where(done, success.astype(jnp.float32), state.info["tile_result"])
+        info["reset_rng"] = keys[:, 1]
+        pipeline_state = jax.tree.map(where_done, fresh.pipeline_state, state.pipeline_state)
+        obs = jax.tree.map(where_done, fresh.obs, state.obs)
+        return state.replace(pipeline_state=pipeline_state, obs=obs, info=info)
+
+    def _vmap_unwrapped(self, fn, *args):
+        """vmap fn(unwrapped env, *row) over the batch, each row with its own randomized model when
+        a DomainRandomizationVmapWrapper is in the chain (as brax's reset and step see it)."""
+        e = self.env
+        while not isinstance(e, brax_training.DomainRandomizationVmapWrapper) and hasattr(e, "env"):
+            e = e.env
+        if not isinstance(e, brax_training.DomainRandomizationVmapWrapper):
+            return jax.vmap(lambda *a: fn(self.env.unwrapped, *a))(*args)
+
+        def one(sys, *row):
+            with e.v_env_fn(sys) as v_env:
+                return fn(v_env, *row)
+
+        return jax.vmap(one, in_axes=[e._in_axes] + [0] * len(args))(e._sys_v, *args)
+
 
 def wrap_for_training(env, episode_length: int, action_repeat: int = 1, randomization_fn=None):
     """The `wrap_env_fn` for `brax.training.agents.ppo.train`."""
@@ -65,4 +148,4 @@ def wrap_for_training(env, episode_length: int, action_repeat: int = 1, randomiz
     else:
         env = brax_training.DomainRandomizationVmapWrapper(env, randomization_fn)
     env = brax_training.EpisodeWrapper(env, episode_length, action_repeat)
-    return ResamplingAutoReset(env)
+    return ResamplingAutoReset(env, episode_length)

@@ -23,6 +23,7 @@ NAMES = [
     "CaramelFlat", "CaramelRough", "CaramelCommandFlat", "CaramelCommandRough",
     "CaramelJoystickFlat", "CaramelJoystickRough",
     "CaramelJoystickTrueStateFlat", "CaramelJoystickTrueStateRough",
+    "QuadsonJoystickTiles",
     "QuadsonGaitWalk", "QuadsonGaitTrot", "QuadsonGaitPace", "QuadsonGaitBound", "QuadsonGaitGallop",
 ]  # fmt: skip
 

@@ -44,7 +44,7 @@ from quadson_mjx import errors, gait, recording
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
-from quadson_mjx.env_config import check_env_config, env_config, with_added_keys
+from quadson_mjx.env_config import ENV_TERRAINS, check_env_config, env_config, with_added_keys
 from quadson_mjx.errors import UsageError
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
 
@@ -91,7 +91,7 @@ def parse(argv):
     p.add_argument("--controller", default="gait", choices=R.CONTROLLERS)
     p.add_argument("--run", default=None, help="run directory of a trained policy (overrides --controller)")
     p.add_argument("--checkpoint", default=None, help="checkpoint file of --run (default: newest)")
-    p.add_argument("--terrain", default=None, choices=list(TERRAINS), help="default: flat, or the run's")
+    p.add_argument("--terrain", default=None, choices=list(ENV_TERRAINS), help="default: flat, or the run's")
     p.add_argument("--gait", default=None, help="a gait of the robot (default: the robot's, Quadson's trot)")
     p.add_argument(
         "--robot",

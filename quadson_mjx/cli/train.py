@@ -35,9 +35,9 @@ import jax
 
 from quadson_mjx import tasks, training
 from quadson_mjx.config import apply_overrides
-from quadson_mjx.env_config import GAIT_RECIPES, check_env_config
+from quadson_mjx.env_config import ENV_TERRAINS, GAIT_RECIPES, check_env_config
 from quadson_mjx.errors import ArgumentParser, UsageError, one_line_errors
-from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
+from quadson_mjx.robots import ROBOT_NAMES
 from quadson_mjx.training.guards import check_backend
 
 # the flags a task stands for, with their defaults
@@ -61,7 +61,7 @@ def parse(argv):
     p.add_argument(
         "--gait-action", action="store_true", help="let the policy also scale step length and cycle time"
     )
-    p.add_argument("--terrain", default=None, choices=list(TERRAINS), help="(default: flat)")
+    p.add_argument("--terrain", default=None, choices=list(ENV_TERRAINS), help="(default: flat)")
     p.add_argument("--robot", default=None, choices=list(ROBOT_NAMES), help="the robot (default: quadson)")
     p.add_argument(
         "--gait",

@@ -33,6 +33,7 @@ class Robot:
     legs: tuple[str, ...]  # leg order of every per-leg array
     load_model: Callable[..., Any]  # (scene (TERRAINS), variant="full") -> mujoco.MjModel
     model_xml_text: Callable[..., str]  # (scene, variant="full") -> robot and scene MJCF text (logs)
+    scene_path: Callable[..., Any]  # (scene, variant="full") -> Path of the scene's MJCF file
     motor_joints: tuple[str, ...]  # the 12 observed joints, legs x motors order
     actuators: tuple[str, ...]  # the 12 actuators in the same order
     root_body: str  # the free-floating base; its free joint comes first in qpos / qvel

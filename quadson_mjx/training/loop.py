@@ -34,6 +34,7 @@ from pathlib import Path
 
 import jax
 
+from quadson_mjx import terrain_tiles
 from quadson_mjx.config import to_json
 from quadson_mjx.errors import write_text_atomic
 from quadson_mjx.provenance import versions
@@ -133,6 +134,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     from quadson_mjx import compat
     from quadson_mjx.env import LocomotionEnv
     from quadson_mjx.env_config import check_env_config
+    from quadson_mjx.env_model import scene_xml_text
     from quadson_mjx.mcap_log import McapLog
     from quadson_mjx.randomize import randomization_fn
     from quadson_mjx.wrappers import wrap_for_training
@@ -239,7 +241,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     if not (contents and any(a.name == xml_name for a in contents.attachments)):
         log.attachment(
             xml_name,
-            env.robot.model_xml_text(env_cfg.terrain, env_cfg.get("fivebar_model", "full")).encode(),
+            scene_xml_text(env.robot, env_cfg).encode(),
             "application/xml",
         )
     event = {"event": "resume" if resume else "start", "step": start_step}
@@ -275,6 +277,13 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         record["progress/xla_compiles"] = compilations.count
         record["progress/xla_compile_s"] = compilations.seconds
         record["progress/xla_cache_hits"] = compilations.cache_hits
+        if env.tiles is not None and state.latest is not None and jax.process_count() == 1:
+            info = state.latest[1].info  # the training robots' curriculum after the last epoch
+            summary = terrain_tiles.curriculum_summary(
+                env.tiles, info["tile_type"], info["tile_level"], info["tile_result"]
+            )
+            record.update({f"curriculum/{k}": v for k, v in summary.items()})
+            print(terrain_tiles.curriculum_line(env.tiles, summary), file=stream)
         length = record.get("eval/avg_episode_length")
         if length:  # brax sums per-step metrics over an episode; per-step means are what one reads
             for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset", "vx_sq_err", "vy_sq_err", "yaw_rate_sq_err", "base_height", "base_below_terrain", "fall", "off_field"):  # fmt: skip

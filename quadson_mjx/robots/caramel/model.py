@@ -224,6 +224,14 @@ def _check_variant(variant: str) -> None:
         raise ValueError(f"caramel has serial legs: model variant {variant!r} is not one; expected 'full'")
 
 
+def scene_path(scene: str = "flat", variant: str = "full") -> Path:
+    """The scene file of "flat" or "rough" (variant: "full" only)."""
+    _check_variant(variant)
+    if scene not in SCENES:
+        raise ValueError(f"unknown scene {scene!r}: expected one of {sorted(SCENES)}")
+    return MODEL_DIR / SCENES[scene]
+
+
 def load_model(scene: str = "flat", variant: str = "full") -> mujoco.MjModel:
     """The compiled model: "flat" (scene.xml), "rough" (scene_rough.xml), or "fixed" (base welded to
     the world at FIXED_BASE_HEIGHT, no floor: a leg moves in the air). variant: "full" only."""
@@ -232,7 +240,7 @@ def load_model(scene: str = "flat", variant: str = "full") -> mujoco.MjModel:
         return mujoco.MjModel.from_xml_string(robot_xml(floating=False))
     if scene not in SCENES:
         raise ValueError(f"unknown scene {scene!r}: expected one of {sorted(SCENES) + ['fixed']}")
-    return mujoco.MjModel.from_xml_path(str(MODEL_DIR / SCENES[scene]))
+    return mujoco.MjModel.from_xml_path(str(scene_path(scene, variant)))
 
 
 def model_xml_text(scene: str = "flat", variant: str = "full") -> str:

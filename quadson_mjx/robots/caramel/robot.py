@@ -15,6 +15,7 @@ ROBOT = Robot(
     legs=C.LEGS,
     load_model=model.load_model,
     model_xml_text=model.model_xml_text,
+    scene_path=model.scene_path,
     motor_joints=C.JOINT_NAMES,
     actuators=C.ACTUATORS,
     root_body=C.ROOT_BODY,

@@ -360,6 +360,7 @@ def write_model_files(directory: Path = MODEL_DIR) -> list[Path]:
 
 
 def scene_path(scene: str = "flat", variant: str = "full") -> Path:
+    """The scene file of "flat" or "rough" in the leg model `variant` (FIVEBAR_MODELS)."""
     if scene not in SCENES:
         raise ValueError(f"unknown scene {scene!r}: expected one of {sorted(SCENES)}")
     _check_variant(variant)

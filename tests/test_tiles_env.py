@@ -1,0 +1,225 @@
+"""The environment on the tiled ground (env.terrain="tiles"): the height field MuJoCo steps is the
+generator's, spawns start on their tile with nothing inside the ground (MuJoCo's own collision of
+the feet and the base box against the field, on every tile type), the auto-reset moves a robot's
+level as the curriculum rule says on hand-set episodes and respawns it on its new tile, and the
+training log's per-type summary by hand."""
+
+import copy
+import functools
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from quadson_mjx import terrain, terrain_tiles
+from quadson_mjx.env import SPAWN_CLEARANCE_M, LocomotionEnv
+from quadson_mjx.env_config import check_env_config
+from quadson_mjx.env_model import BASE_GEOM
+from quadson_mjx.randomize import randomization_fn
+from quadson_mjx.tasks import config_from_flags
+from quadson_mjx.wrappers import SUCCESS_SHARE, wrap_for_training
+
+N_ENVS = 4
+EPISODE = 6  # control steps
+
+
+def _config(**tiles):
+    """The robust preset on a small tiled ground (1 m tiles, 3 levels, every type)."""
+    cfg = config_from_flags(env_preset="robust", terrain="tiles").unlock()
+    cfg.tiles.update(
+        {"tile_m": 1.0, "levels": 3, "max_init_level": 2, "border_m": 0.5, "spawn_margin_m": 0.15}
+    )
+    cfg.tiles.update(tiles)
+    cfg.lock()
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def env():
+    return LocomotionEnv(_config())
+
+
+@pytest.fixture(scope="module")
+def spawn(env):
+    return jax.jit(jax.vmap(env.reset_on_tile))
+
+
+@pytest.fixture(scope="module")
+def wrapped(env):
+    rand = functools.partial(
+        randomization_fn(env.config.randomization, env.base_body),
+        rng=jax.random.split(jax.random.PRNGKey(1), N_ENVS),
+    )
+    w = wrap_for_training(env, EPISODE, randomization_fn=rand)
+    return w, jax.jit(w.reset_on_tiles), jax.jit(w.step)
+
+
+def test_the_field_is_the_generators(env):
+    spec = env.tiles
+    assert spec.types == terrain_tiles.TILE_TYPES and spec.levels == 3 and spec.tile_m == 1.0
+    field = terrain.heightfield(env.mj_model)
+    want = terrain_tiles.tile_grid(spec)
+    assert field.heights.shape == want.shape == (3 * 50 + 1 + 50, 8 * 50 + 1 + 50)  # 0.5 m border
+    z = np.asarray(field.heights) + float(field.origin[2])
+    np.testing.assert_allclose(z, want, atol=2e-6)  # float32 samples of a 0.36 m relief
+    np.testing.assert_allclose(field.half_size, spec.half_size)
+
+
+def test_config_errors_name_the_key():
+    for tiles, words in (
+        ({"types": "flat,lava"}, "env.tiles"),
+        ({"max_init_level": 3}, "env.tiles.max_init_level"),
+        ({"spawn_margin_m": 0.5}, "env.tiles.spawn_margin_m"),
+        ({"curriculum_down": 0.9}, "env.tiles.curriculum_down"),
+        ({"border_m": 0.015}, "border_m"),
+    ):
+        with pytest.raises(ValueError, match=words.replace(".", r"\.")):
+            check_env_config(_config(**tiles))
+
+
+def _contact_model(env) -> mujoco.MjModel:
+    """The env's model with the base box colliding again and a 5 cm margin on the feet and the box,
+    so MuJoCo reports their distance to the field before they touch it."""
+    m = copy.copy(env.mj_model)
+    base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, BASE_GEOM)
+    m.geom_contype[base] = m.geom_conaffinity[base] = 1
+    for name in (*env.robot.foot_geoms(), BASE_GEOM):
+        m.geom_margin[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)] = 0.05
+    return m
+
+
+def test_spawns_on_their_tile_and_never_inside_the_ground(env, spawn):
+    """On every type and level: the base over the tile at least spawn_margin_m inside it, a random
+    heading, and MuJoCo's collision of the feet and the base box with the field finds no
+    penetration while the lowest of them is within a few mm of the ground (a drop of millimetres)."""
+    spec = env.tiles
+    types, levels = np.meshgrid(np.arange(len(spec.types)), np.arange(spec.levels), indexing="ij")
+    types, levels = np.repeat(types.ravel(), 4), np.repeat(levels.ravel(), 4)  # 4 spawns per tile
+    states = spawn(jax.random.split(jax.random.PRNGKey(3), types.size), types, levels)
+    qpos = np.asarray(states.pipeline_state.qpos)
+    np.testing.assert_array_equal(states.info["tile_type"], types)
+    np.testing.assert_array_equal(states.info["tile_level"], levels)
+    centre = np.asarray(terrain_tiles.tile_center(spec, types, levels))
+    assert np.all(np.abs(qpos[:, :2] - centre) <= spec.tile_m / 2 - env.config.tiles.spawn_margin_m + 1e-6)
+    yaw = 2 * np.arctan2(qpos[:, 6], qpos[:, 3])
+    assert np.ptp(np.mod(yaw, 2 * np.pi)) > 3.0  # headings spread over the circle
+
+    m = _contact_model(env)
+    d = mujoco.MjData(m)
+    floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, terrain.FLOOR_GEOM)
+    closest = []
+    for i, q in enumerate(qpos):
+        d.qpos[:] = q
+        mujoco.mj_forward(m, d)
+        dist = [c.dist for c in d.contact[: d.ncon] if floor in (c.geom1, c.geom2)]
+        kind = spec.types[types[i]]
+        assert dist, f"{kind} level {levels[i]}: nothing within 5 cm of the ground"
+        assert min(dist) >= -1e-6, f"{kind} level {levels[i]}: starts {-min(dist) * 1e3:.2f} mm in the ground"
+        closest.append(min(dist))
+    # the lift is tight: a foot's sphere within clearance + its radius x tan(20 deg) + a cell's slope
+    assert max(closest) < SPAWN_CLEARANCE_M + 0.01
+    assert np.median(closest) < SPAWN_CLEARANCE_M + 0.002
+
+
+def test_curriculum_and_respawn_on_hand_set_episodes(env, wrapped):
+    """Four robots one step before their episode's end, with the distance covered and asked for set
+    by hand: covered (up), short (down), in between (kept), fell (down); each restarts on its
+    column at its new level, its episode and buffers fresh, its result recorded."""
+    w, reset_on_tiles, step = wrapped
+    spec = env.tiles
+    types = jnp.array([0, 3, 4, 6])
+    state = reset_on_tiles(jax.random.split(jax.random.PRNGKey(0), N_ENVS), types, jnp.array([1, 1, 1, 1]))
+    info = dict(state.info)
+    info["steps"] = jnp.full(N_ENVS, EPISODE - 1.0)  # the next step ends every episode (time limit)
+    info["tile_progress_m"] = jnp.array([2.0, 0.1, 0.7, 2.0])
+    info["tile_commanded_m"] = jnp.array([1.0, 1.0, 1.0, 1.0])
+    info["command"] = jnp.zeros((N_ENVS, 3))  # nothing added in the last step
+    state = state.replace(info=info)
+    # robot 3 falls: turned upside down
+    qpos = state.pipeline_state.qpos.at[3, 3:7].set(jnp.array([0.0, 1.0, 0.0, 0.0]))
+    state = state.replace(pipeline_state=state.pipeline_state.replace(qpos=qpos))
+    out = step(state, jnp.zeros((N_ENVS, env.action_size)))
+    assert np.all(np.asarray(out.done) == 1.0)
+    np.testing.assert_array_equal(out.metrics["fall"], [0, 0, 0, 1])
+    np.testing.assert_array_equal(out.info["tile_level"], [2, 0, 1, 0])
+    np.testing.assert_array_equal(out.info["tile_type"], types)
+    # success: no fall and SUCCESS_SHARE of the commanded distance
+    assert SUCCESS_SHARE == 0.8
+    np.testing.assert_array_equal(out.info["tile_result"], [1.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(out.info["tile_progress_m"], 0.0)
+    np.testing.assert_array_equal(out.info["episode_time"], 0.0)
+    centre = np.asarray(terrain_tiles.tile_center(spec, types, out.info["tile_level"]))
+    xy = np.asarray(out.pipeline_state.qpos[:, :2])
+    assert np.all(np.abs(xy - centre) <= spec.tile_m / 2)  # respawned on the new tile
+    assert np.all(np.isfinite(np.asarray(out.obs["state"]))) and np.all(
+        np.isfinite(np.asarray(out.obs["privileged_state"]))
+    )
+
+
+def test_curriculum_summary_by_hand():
+    spec = terrain_tiles.TerrainSpec(types=("flat", "stairs_up"), levels=4)
+    s = terrain_tiles.curriculum_summary(spec, [0, 0, 0, 1], [1, 3, 2, 0], [1, 0, -1, -1])
+    assert (
+        s["flat/robots"] == 3
+        and s["flat/level_mean"] == 2.0
+        and s["flat/level_max_share"] == pytest.approx(1 / 3)
+    )
+    assert s["flat/episodes"] == 2 and s["flat/success"] == 0.5
+    assert s["stairs_up/robots"] == 1 and s["stairs_up/episodes"] == 0 and "stairs_up/success" not in s
+    line = terrain_tiles.curriculum_line(spec, s)
+    assert line == "curriculum (mean level, success): flat L2.0 50%, stairs_up L0.0"
+
+
+def test_tiles_evaluation_of_the_gait_alone():
+    """evaluate_tiles with a zero policy (the gait alone) standing on two tile types x two levels:
+    one row per tile with its robots; standing asks for no distance, so every robot that did not
+    fall succeeds; the gait stepping in place tracks vx = 0 within 0.1 m/s. Bad requests refused."""
+    from quadson_mjx import tiles_eval
+
+    env_cfg = _config()
+    act = LocomotionEnv(env_cfg).action_size
+
+    def policy(obs, key):
+        return jnp.zeros(obs["state"].shape[:-1] + (act,)), {}
+
+    rows = tiles_eval.evaluate_tiles(
+        env_cfg, policy, [0, 2], 2, 1.5, (0.0, 0.0, 0.0), 0, ["flat", "slope_up"]
+    )
+    assert [(r["type"], r["level"], r["robots"]) for r in rows] == [
+        ("flat", 0, 2), ("flat", 2, 2), ("slope_up", 0, 2), ("slope_up", 2, 2)
+    ]  # fmt: skip
+    assert rows[3]["slope_deg"] == pytest.approx(20.0) and "slope_deg" not in rows[0]
+    for r in rows:
+        assert r["success"] == 1.0 - r["falls"] / r["robots"]
+        assert r["distance_share"] == 1.0
+    assert rows[0]["falls"] == 0 and rows[0]["rms_vx"] < 0.1
+    with pytest.raises(ValueError, match="lava"):
+        tiles_eval.evaluate_tiles(env_cfg, policy, [0], 1, 1.5, types=["lava"])
+    with pytest.raises(ValueError, match="levels"):
+        tiles_eval.evaluate_tiles(env_cfg, policy, [3], 1, 1.5)
+    spec = terrain_tiles.TerrainSpec()
+    assert tiles_eval.difficulty(spec, "slope_down", 6) == {"slope_deg": pytest.approx(14.0)}
+    assert tiles_eval.difficulty(spec, "stairs_up", 7) == {"step_m": pytest.approx(0.032)}
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--run", "no/such/run"],
+        ["--run", "results/policy_h100_sensors", "--seconds", "nan"],
+        ["--run", "results/policy_h100_sensors", "--envs", "0"],
+        ["--run", "results/policy_h100_sensors", "--vx", "5"],
+        ["--run", "results/policy_h100_sensors", "--json", "/proc/version/x.json"],
+    ],
+)
+def test_tiles_eval_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
+    from pathlib import Path
+
+    from quadson_mjx.cli import tiles_eval as cli
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and err.count("\n") == 1, err
