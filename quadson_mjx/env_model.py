@@ -55,7 +55,8 @@ def training_model(robot, cfg) -> mujoco.MjModel:
 def tiles_model(robot, variant: str, spec: terrain_tiles.TerrainSpec) -> mujoco.MjModel:
     """The robot over the tiled ground of `spec` (terrain_tiles.tile_grid): its stone-field scene
     (the same floor geom, contact and materials) with the height field's samples, extent and relief
-    replaced, the floor geom lowered to the field's lowest point. Built in memory (no file)."""
+    replaced, the floor geom lowered to the field's lowest point. Built in memory (no file; MjSpec,
+    whose XML writer would round the model's numbers to 6 digits, so none is written)."""
     heights = terrain_tiles.tile_grid(spec)
     size, lowest = terrain_tiles.hfield_size(heights, spec)
     mj_spec = mujoco.MjSpec.from_file(str(robot.scene_path("rough", variant)))

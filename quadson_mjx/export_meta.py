@@ -26,9 +26,13 @@ def model_identity(robot, env_cfg) -> dict:
     from quadson_mjx.env_model import name_ids, training_model
 
     m = training_model(robot, env_cfg)
+    # the XML of the model just loaded, with m's values; the tiled ground is built in memory from the
+    # stone-field scene (env_model.tiles_model): the XML is that scene's with the same options, and
+    # hfield_sha256 is the tiled field's
+    scene = m if env_cfg.terrain != "tiles" else training_model(robot, _with_terrain(env_cfg, "rough"))
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.xml"
-        mujoco.mj_saveLastXML(str(path), m)  # the XML of the model just loaded, with m's values
+        mujoco.mj_saveLastXML(str(path), scene)
         xml = path.read_bytes()
     ids = name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators)
     return {
@@ -44,6 +48,15 @@ def model_identity(robot, env_cfg) -> dict:
             for name, i in zip(robot.actuators, ids, strict=True)
         },
     }
+
+
+def _with_terrain(env_cfg, terrain: str):
+    """A copy of env_cfg (frozen or not) on another ground."""
+    from quadson_mjx.env_config import with_added_keys
+
+    cfg = with_added_keys(env_cfg).unlock()
+    cfg.terrain = terrain
+    return cfg
 
 
 def robot_meta(env) -> dict:

@@ -57,6 +57,8 @@ COMMITTED_RUNS = {
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
     # the robust recipe with 3 ticks of sensor history
     "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
+    # the robust recipe on the tiled ground with its curriculum
+    "results/tiles_h100": ("QuadsonJoystickTiles", []),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     "results/gaits/pace": ("QuadsonGaitPace", []),
