@@ -76,8 +76,15 @@ def drawn_geoms(model) -> list[int]:
     return sorted(out)
 
 
-def _hfield_triangles(model, g) -> fm.TriangleListPrimitive:
-    """The height field as a triangle list in the geom frame (MuJoCo's vertex layout)."""
+HFIELD_MAX_VERTICES = 250_000  # a larger height field is drawn from every k-th sample
+
+
+def hfield_grid(model, g) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The samples of height field geom g that the scene draws -> (x (ncol,), y (nrow,), z (nrow,
+    ncol)) in the geom frame [m]. Fields of more than HFIELD_MAX_VERTICES samples (the tiled
+    ground: 1101 x 901) are drawn from every k-th sample in each direction, the last row and column
+    kept, so the scene message stays a few MB (the default tiled ground: every 2nd, 4 cm apart; its
+    stairs' 15 cm treads still show)."""
     h = int(model.geom_dataid[g])
     nrow, ncol = int(model.hfield_nrow[h]), int(model.hfield_ncol[h])
     rx, ry, top, _ = model.hfield_size[h]
@@ -85,6 +92,19 @@ def _hfield_triangles(model, g) -> fm.TriangleListPrimitive:
     z = np.asarray(model.hfield_data[adr : adr + nrow * ncol]).reshape(nrow, ncol) * top
     xs = np.linspace(-rx, rx, ncol)
     ys = np.linspace(-ry, ry, nrow)
+    k = int(np.ceil(np.sqrt(nrow * ncol / HFIELD_MAX_VERTICES)))
+    if k > 1:
+        rows = np.unique(np.append(np.arange(0, nrow, k), nrow - 1))
+        cols = np.unique(np.append(np.arange(0, ncol, k), ncol - 1))
+        z, xs, ys = z[np.ix_(rows, cols)], xs[cols], ys[rows]
+    return xs, ys, z
+
+
+def _hfield_triangles(model, g) -> fm.TriangleListPrimitive:
+    """The height field as a triangle list in the geom frame (MuJoCo's vertex layout), from
+    hfield_grid's samples."""
+    xs, ys, z = hfield_grid(model, g)
+    nrow, ncol = z.shape
     points = [
         fm.Point3(x=float(xs[c]), y=float(ys[r]), z=float(z[r, c])) for r in range(nrow) for c in range(ncol)
     ]

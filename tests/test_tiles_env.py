@@ -223,3 +223,26 @@ def test_tiles_eval_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and err.count("\n") == 1, err
+
+
+def test_foxglove_draws_the_default_tiled_ground_decimated():
+    """The default field (1101 x 901 samples) is drawn from every 2nd sample, corners kept: the
+    drawn vertices are MuJoCo's samples at their grid positions, and the scene stays small."""
+    from quadson_mjx import foxglove_scene
+    from quadson_mjx.env_config import env_config
+    from quadson_mjx.env_model import training_model
+    from quadson_mjx.robots import get_robot
+
+    m = training_model(get_robot("quadson"), env_config(terrain="tiles"))
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, terrain.FLOOR_GEOM)
+    xs, ys, z = foxglove_scene.hfield_grid(m, g)
+    nrow, ncol = int(m.hfield_nrow[0]), int(m.hfield_ncol[0])
+    assert (nrow, ncol) == (1101, 901)
+    rows, cols = len(range(0, nrow, 2)), len(range(0, ncol, 2))  # every 2nd: rows 0..1100, columns 0..900
+    assert z.shape == (rows, cols) and z.size <= foxglove_scene.HFIELD_MAX_VERTICES
+    data = m.hfield_data.reshape(nrow, ncol) * m.hfield_size[0, 2]
+    rx, ry = m.hfield_size[0, :2]
+    assert (xs[0], ys[0], z[0, 0]) == pytest.approx((-rx, -ry, data[0, 0]))
+    assert (xs[-1], ys[-1], z[-1, -1]) == pytest.approx((rx, ry, data[-1, -1]))
+    assert (xs[11], ys[7], z[7, 11]) == pytest.approx((-rx + 0.44, -ry + 0.28, data[14, 22]), abs=1e-6)
+    assert foxglove_scene._hfield_triangles(m, g) is not None  # the message builds from them
