@@ -216,9 +216,15 @@ def test_regression_signal_to_one_process_stops_both(tmp_path):
     # their next meeting before a computation across processes: both end as on Ctrl-C (status 130).
     port = _free_port()
     logs = tmp_path / "logs"
+    # a run long enough that the signal lands before it ends even when every program comes from
+    # the compilation cache (with RUN's 128 steps a cached run could finish first: exit 0)
+    long_run = [*RUN, "--ppo.num_timesteps=40000"]
     procs = [
         _start(
-            [*RUN, "--run-dir", str(tmp_path / "run"), *_distributed(port, i)], tmp_path / f"p{i}", 2, logs
+            [*long_run, "--run-dir", str(tmp_path / "run"), *_distributed(port, i)],
+            tmp_path / f"p{i}",
+            2,
+            logs,
         )
         for i in (0, 1)
     ]
