@@ -33,7 +33,7 @@ from mujoco import mjx
 
 from quadson_mjx import commands, gait, obs_spec, rewards, sensors, terrain, terrain_tiles
 from quadson_mjx.config import freeze
-from quadson_mjx.env_config import check_env_config, env_config, env_gait, tile_spec, with_added_keys
+from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_added_keys
 from quadson_mjx.env_model import (
     BASE_GEOM,
     base_bottom_points,
@@ -44,6 +44,7 @@ from quadson_mjx.env_model import (
 )
 from quadson_mjx.quat import quat_mul, quat_rotate
 from quadson_mjx.robots import get_robot
+from quadson_mjx.terrain_tiles import tile_spec
 
 EXPLODED_SPEED = 50.0  # m/s or rad/s: no state of either robot is this fast; treat it as a blown-up solve
 SPAWN_CLEARANCE_M = 0.005  # a spawn on the tiled ground starts this far above its lowest contact (at most)

@@ -14,8 +14,9 @@ import numpy as np
 from mujoco import mjx
 
 from quadson_mjx import terrain_tiles, warp_notice
-from quadson_mjx.env_config import CONES, JACOBIANS, SOLVERS, tile_spec
+from quadson_mjx.env_config import CONES, JACOBIANS, SOLVERS
 from quadson_mjx.terrain import FLOOR_GEOM
+from quadson_mjx.terrain_tiles import tile_spec
 
 BASE_GEOM = "base_collision"  # the base's box, every robot's
 

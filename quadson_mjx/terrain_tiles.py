@@ -214,6 +214,53 @@ def write_hfield_bin(path, heights: np.ndarray) -> None:
         f.write(heights.astype(np.float32).tobytes())
 
 
+# The env config's `tiles` keys (env_config: terrain="tiles"; no other terrain reads them).
+# types: comma-separated tile types, one column each (TILE_TYPES); levels: rows of rising
+# difficulty; border_m: flat ground around them (a robot on an outer tile can walk off it before
+# the field's edge ends its episode, termination.off_field_margin_m). A robot keeps its column and
+# starts at a level drawn in [0, max_init_level] (legged_gym starts at 5 of 10 rows; 4 here: the
+# rows before the 15-degree slopes and 2.4 cm steps), with a random heading, anywhere on its tile
+# at least spawn_margin_m inside the edges. With curriculum, at every episode end its level goes up
+# one when it covered curriculum_up of the distance its commands asked for and did not fall, down
+# one when it fell or covered less than curriculum_down (curriculum_levels).
+TILES = {
+    "types": ",".join(TILE_TYPES),
+    "levels": 10,
+    "tile_m": 2.0,
+    "border_m": 1.0,
+    "seed": 0,
+    "max_init_level": 4,
+    "spawn_margin_m": 0.25,
+    "curriculum": True,
+    "curriculum_up": 0.8,
+    "curriculum_down": 0.5,
+}
+
+
+def tile_spec(cfg) -> TerrainSpec:
+    """The TerrainSpec of an env config's `tiles` keys (terrain="tiles"); ValueError
+    naming the key for a value the generator refuses."""
+    t = cfg.tiles
+    types = tuple(x.strip() for x in t.types.split(","))
+    try:
+        spec = TerrainSpec(types=types, levels=t.levels, tile_m=t.tile_m, seed=t.seed, border_m=t.border_m)
+    except ValueError as e:
+        raise ValueError(f"env.tiles: {e}") from None
+    if t.max_init_level >= t.levels:
+        raise ValueError(
+            f"env.tiles.max_init_level must be < env.tiles.levels ({t.levels}), got {t.max_init_level}"
+        )
+    if t.spawn_margin_m >= t.tile_m / 2:
+        raise ValueError(
+            f"env.tiles.spawn_margin_m must be < tile_m / 2 ({t.tile_m / 2} m), got {t.spawn_margin_m}"
+        )
+    if t.curriculum_down > t.curriculum_up:
+        raise ValueError(
+            f"env.tiles.curriculum_down ({t.curriculum_down}) must be <= env.tiles.curriculum_up ({t.curriculum_up})"
+        )
+    return spec
+
+
 # --- in JAX, per robot: where it starts and how its level moves ---
 
 
