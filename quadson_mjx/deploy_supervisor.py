@@ -29,8 +29,9 @@ controller's with a smoothstep over blend_s (rest_ease_s into the rest pose), so
 The get-up policy's observation (obs_spec.getup_observation, 30 values): gravity (3) the unit
 gravity direction in the body frame from the IMU quaternion, gyro (3) [rad/s], motor_pos (12) the
 encoders [rad], last_action (12) its previous action (0 at the start of an attempt). Its action
-(obs_spec.getup_action): 12 values in [-1, 1], motor targets over the real motor ranges
-(`getup_targets`), then the robot's clamp (Quadson's toe-in guard) and a safety layer
+(obs_spec.getup_action): 12 values in [-1, 1], motor targets from the home stance (0) to each
+motor's limits (-1, +1), inside the toe-in guard and the five-bar's assembly band (`getup_targets`,
+chain_guard), then the robot's clamp and a safety layer
 (deploy_safety: rate limit, hold and ease home on a fault) as the walking loop's.
 
 Bad input: a tick whose sensors fail deploy_safety.check_sensors (a NaN IMU, a zero quaternion, an
@@ -54,6 +55,7 @@ from quadson_mjx import obs_spec
 from quadson_mjx.deploy_observation import ObservationBuilder
 from quadson_mjx.deploy_safety import Fault, SafetyLayer, as_vector, check_sensors
 from quadson_mjx.quat import quat_rotate_inverse
+from quadson_mjx.robots.quadson import chain_guard
 
 __all__ = [
     "GetupPolicy",
@@ -136,12 +138,12 @@ def tilt(imu_quat_wxyz) -> float:
     return float(np.arccos(np.clip(-g[2], -1.0, 1.0)))
 
 
-def getup_targets(action, motor_limits) -> np.ndarray:
-    """action (12,) in [-1, 1] (clipped) -> motor targets (12,) [rad]: lo + (a + 1) / 2 (hi - lo)
-    per motor over motor_limits (12, 2), so the policy spans each motor's whole real range."""
-    a = np.clip(np.asarray(action, np.float64), -1.0, 1.0)
-    lo, hi = motor_limits[:, 0], motor_limits[:, 1]
-    return lo + 0.5 * (a + 1.0) * (hi - lo)
+def getup_targets(action, home_motor) -> np.ndarray:
+    """action (12,) in [-1, 1] (clipped), home_motor (12,) [rad] -> motor targets (12,) [rad]: 0 the
+    home stance, -1 / +1 each motor's lower / upper limit, then the toe-in guard and the five-bar's
+    assembly band (chain_guard.getup_targets, as the get-up environment computes them)."""
+    targets, _ = chain_guard.getup_targets(np.asarray(action, np.float64), np.asarray(home_motor, np.float64))
+    return targets
 
 
 class GetupPolicy:
@@ -181,7 +183,8 @@ class GetupPolicy:
             return None
         action = np.clip(action, -1.0, 1.0)
         self.observer.commit(action)
-        return self.robot.clamp(getup_targets(action, self.robot.motor_limits)), action, obs
+        targets = getup_targets(action, self.robot.home_motor)
+        return self.robot.clamp(targets), action, obs
 
 
 def _smoothstep(s: float) -> float:

@@ -17,6 +17,8 @@ import mujoco
 
 from quadson_mjx.config import Rule, rule_for
 from quadson_mjx.gait import GaitParams
+from quadson_mjx.getup_config import EPISODE_S as GETUP_EPISODE_S
+from quadson_mjx.getup_config import GETUP, GETUP_RULES, check_getup_config
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS, get_robot
 from quadson_mjx.terrain_tiles import TILES, tile_spec
 
@@ -138,6 +140,9 @@ ENV_KEYS_ADDED = {
     "asymmetric_critic": False,
     "fivebar_model": "full",
     **{f"tiles.{k}": v for k, v in TILES.items()},
+    "task": "locomotion",
+    **{f"getup.{k}": v for k, v in GETUP.items() if k != "weights"},
+    **{f"getup.weights.{k}": v for k, v in GETUP["weights"].items()},
 }
 
 # What the actor observes (obs_spec): "sensors", the robot's own sensors only (sensor_observation);
@@ -195,8 +200,14 @@ def env_config(
     robot: str = "quadson",
     observation: str = "true_state",
     asymmetric_critic: bool = False,
+    task: str = "locomotion",
 ) -> ml_collections.ConfigDict:
     """The environment config. Defaults reproduce seed 000's RL formulation.
+
+    task: "locomotion" (LocomotionEnv: the gait plus the policy's foot offsets) or "getup"
+        (quadson_mjx.getup_env: getting up after a fall; Quadson only; implies the sensor-only
+        actor and privileged critic, a 6 s episode and the robot's legs touching the ground; the
+        gait and command keys are then unused; quadson_mjx.getup_config).
 
     observation: what the actor observes, "true_state" (seed 000's, with the simulator's base
         velocity) or "sensors" (the robot's own sensors only; OBSERVATIONS); asymmetric_critic: the
@@ -233,8 +244,11 @@ def env_config(
             f"no gait recipe for {robot}'s {gait!r}; recipes exist for Quadson's {sorted(GAIT_RECIPES)}"
         )
     randomize = randomize or gait_recipe
+    if task == "getup":
+        observation, asymmetric_critic, base_terrain_contact = "sensors", True, True
     cfg = ml_collections.ConfigDict(
         {
+            "task": task,
             "robot": robot,
             "terrain": terrain,
             # Base box <-> ground contacts. MJX's box-heightfield collision is expensive: on the rough
@@ -328,8 +342,11 @@ def env_config(
             "pushes": pushes,
             "push": {"interval_s": (2.0, 4.0), "speed_mps": (0.1, 0.4)},
             "tiles": dict(TILES),
+            "getup": {**GETUP, "weights": dict(GETUP["weights"])},
         }
     )
+    if task == "getup":
+        cfg.episode_length_s = GETUP_EPISODE_S
     if joystick:
         cfg.reward.weights.update(JOYSTICK_WEIGHTS)
     if gait_recipe:
@@ -461,6 +478,7 @@ ENV_RULES: dict[str, Rule] = {
     "tiles.curriculum": Rule("bool"),
     "tiles.curriculum_up": Rule("number", 0.0, 10.0, "(of the commanded distance)"),
     "tiles.curriculum_down": Rule("number", 0.0, 10.0, "(of the commanded distance)"),  # <= up
+    **GETUP_RULES,
 }
 
 
@@ -534,3 +552,4 @@ def check_env_config(cfg) -> None:
         raise ValueError(f"env.observation is {cfg.observation!r}; choose from {list(OBSERVATIONS)}")
     if cfg.obs_history > 1 and cfg.observation != "sensors":
         raise ValueError("env.obs_history > 1 needs env.observation=sensors")
+    check_getup_config(cfg)

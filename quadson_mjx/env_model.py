@@ -15,6 +15,7 @@ from mujoco import mjx
 
 from quadson_mjx import terrain_tiles, warp_notice
 from quadson_mjx.env_config import CONES, JACOBIANS, SOLVERS
+from quadson_mjx.sim2sim_model import leg_of_body
 from quadson_mjx.terrain import FLOOR_GEOM
 from quadson_mjx.terrain_tiles import tile_spec
 
@@ -47,10 +48,29 @@ def training_model(robot, cfg) -> mujoco.MjModel:
         m.geom_conaffinity[base_geom] = 0
     if not cfg.joint_limits:
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    if cfg.get("task", "locomotion") == "getup":
+        legs_touch_ground(m, robot)
     m.opt.cone = CONES[cfg.cone]
     m.opt.solver = SOLVERS[cfg.solver]
     m.opt.jacobian = JACOBIANS[cfg.jacobian]
     return m
+
+
+def legs_touch_ground(m: mujoco.MjModel, robot) -> None:
+    """Every geom of every leg (hip box, link capsules, foot sphere) touches the ground, with the
+    base box's contact parameters (its collision class), in place: a fallen robot lies on its hips
+    and links, not on its feet. The legs do not touch each other (MJX would test every pair of
+    their geoms each step); the get-up task penalises poses where they overlap instead
+    (getup_start.self_clearance). The ground geoms have contype 1, so conaffinity 1 suffices."""
+    base = int(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, [BASE_GEOM])[0])
+    root = int(name_ids(m, mujoco.mjtObj.mjOBJ_BODY, [robot.root_body])[0])
+    legs = leg_of_body(m, robot, root)
+    for g in range(m.ngeom):
+        if int(m.geom_bodyid[g]) in legs:
+            m.geom_contype[g], m.geom_conaffinity[g] = 0, 1
+            m.geom_friction[g] = m.geom_friction[base]
+            m.geom_solref[g], m.geom_solimp[g] = m.geom_solref[base], m.geom_solimp[base]
+            m.geom_condim[g] = m.geom_condim[base]
 
 
 def tiles_model(robot, variant: str, spec: terrain_tiles.TerrainSpec) -> mujoco.MjModel:

@@ -163,12 +163,12 @@ def export_run(
     of another run or robot, a damaged or non-finite one (training.load_checkpoint)."""
     out_path = check_output(out_path, overwrite)
     from quadson_mjx import training
-    from quadson_mjx.env import LocomotionEnv
+    from quadson_mjx.envs import make_env
     from quadson_mjx.errors import atomic_write
     from quadson_mjx.export_meta import run_meta
 
     env_cfg, ppo_cfg = training.load_run_config(run_dir)
-    env = LocomotionEnv(env_cfg)
+    env = make_env(env_cfg)
     path = Path(checkpoint) if checkpoint else training.latest_checkpoint(run_dir)[0]
     params = training.load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
     meta = run_meta(env, ppo_cfg, Path(run_dir), path)

@@ -232,10 +232,19 @@ def getup_observation(motor_joints: Sequence[str]) -> Spec:
 
 
 def getup_action(motor_joints: Sequence[str]) -> Spec:
-    """The get-up task's action in [-1, 1]: one motor target per motor, lo + (a + 1) / 2 (hi - lo)
-    over the motor's real range [lo, hi] (deploy_supervisor.getup_targets)."""
+    """The get-up task's action in [-1, 1]: one motor target per motor, 0 the home stance, -1 / +1
+    the motor's lower / upper limit, linear in between, then the five-bar's guards
+    (chain_guard.getup_targets, deploy_supervisor.getup_targets)."""
     return Spec(
-        (entry("motor_target", tuple(motor_joints), "", "policy", "-1: lower limit, +1: upper limit"),)
+        (
+            entry(
+                "motor_target",
+                tuple(motor_joints),
+                "",
+                "policy",
+                "0: home, -1: lower limit, +1: upper limit (then the five-bar's guards)",
+            ),
+        )
     )
 
 

@@ -132,3 +132,43 @@ def locomotion_terms(
         "contact_phase": contact_phase(contact, stance),
         "contact_pattern": contact_pattern(contact, stance_near),
     }
+
+
+# --- the get-up task (quadson_mjx.getup_env; weights in env.getup.weights) -------------------------
+
+
+def upright_gate(up, gate_rad):
+    """up (...,) cos of the tilt -> (...,) in [0, 1]: 0 beyond gate_rad of tilt, rising linearly in
+    cos(tilt) to 1 upright (height and pose count only once the robot is nearly up)."""
+    c = jnp.cos(gate_rad)
+    return jnp.clip((up - c) / (1.0 - c), 0.0, 1.0)
+
+
+def upright_sq(up):
+    """((1 + cos tilt) / 2)^2: 1 upright, 1/4 on a side, 0 on the back; its slope never vanishes
+    between, so rolling off the back pays from the first degree."""
+    return jnp.square(0.5 * (1.0 + up))
+
+
+def getup_terms(g, *, up, height, stand_height, motor_pos, home_motor, motor_vel, speed_limit, action, last_action, actuator_force, legs_overlap) -> dict:  # fmt: skip
+    """Every term of the get-up task, unweighted, by name (env.getup.weights keys). g: the env
+    config's `getup` group; up (): cos of the tilt (the body z axis against the vertical); height:
+    the base above the ground under it [m], stand_height: the home stance's [m]; motor_pos,
+    home_motor, motor_vel (12,) [rad], [rad/s]; speed_limit: the servo's no-load speed [rad/s];
+    action, last_action (12,); actuator_force (nu,) [N m]; legs_overlap (): True when two legs'
+    collision geometry (or a leg and the base box) overlap."""
+    gate = upright_gate(up, g.upright_gate_rad)
+    pose_sq = jnp.sum(jnp.square(motor_pos - home_motor))
+    at_height = jnp.exp(-jnp.square(height - stand_height) / g.height_sigma_m**2)
+    return {
+        "upright_sq": upright_sq(up),
+        "height_lin": jnp.clip(height / stand_height, 0.0, 1.0),
+        "height_exp": gate * at_height,
+        "home_pose_exp": gate * jnp.exp(-pose_sq / g.pose_sigma_rad**2),
+        "stand_still_exp": gate * at_height * jnp.exp(-0.5 * jnp.sum(jnp.square(action))),
+        "joint_speed_l2": jnp.sum(jnp.square(motor_vel)),
+        "joint_speed_limit": jnp.sum(jnp.maximum(jnp.abs(motor_vel) - speed_limit, 0.0)),
+        "action_rate_l2": action_rate_l2(action, last_action),
+        "torque_l2": torque_l2(actuator_force),
+        "legs_overlap": legs_overlap.astype(jnp.float32),
+    }

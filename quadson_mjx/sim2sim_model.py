@@ -85,10 +85,10 @@ def plant_model(robot, terrain: str, timestep_s: float = TIMESTEP_S) -> mujoco.M
     root = mujoco.mj_name2id(src, mujoco.mjtObj.mjOBJ_BODY, robot.root_body)
     # Every geom of a leg touches the ground (conaffinity bit 0) and the other legs (bit 1 + leg),
     # not its own leg, whose links overlap at their joints; the base box touches the ground only.
-    leg_of_body = _leg_of_body(src, robot, root)
+    leg_of_body_ = leg_of_body(src, robot, root)
     all_legs = sum(1 << (1 + i) for i in range(len(robot.legs)))
     for g, geom in enumerate(spec.geoms):  # the spec lists the geoms in the compiled order
-        leg = leg_of_body.get(int(src.geom_bodyid[g]))
+        leg = leg_of_body_.get(int(src.geom_bodyid[g]))
         if leg is None:
             continue
         geom.contype = 1 << (1 + leg)
@@ -117,7 +117,7 @@ def plant_model(robot, terrain: str, timestep_s: float = TIMESTEP_S) -> mujoco.M
     return m
 
 
-def _leg_of_body(m, robot, root: int) -> dict[int, int]:
+def leg_of_body(m, robot, root: int) -> dict[int, int]:
     """body id -> leg index for every body below the root whose subtree holds one leg's motor joint."""
     out = {}
     for i, leg in enumerate(robot.legs):

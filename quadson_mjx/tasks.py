@@ -46,7 +46,13 @@ ENV_PRESETS = {
     # the same recipe with seed 000's observation (the simulator's base velocity and yaw), kept to
     # compare with: results/policy_h100_joystick was trained with it
     "robust_true_state": {**FAST_PHYSICS, "joystick": True, "randomize": True, "pushes": True},
+    # getting up after a fall (quadson_mjx.getup_env; Quadson on flat or rough ground): the robot's
+    # legs and base touch the ground, the actor observes the robot's own sensors, randomized
+    "getup": {"joint_limits": False, "randomize": True, "task": "getup"},
 }
+# the presets that only some robots and terrains have (else every robot x terrain is a task)
+PRESET_ROBOTS = {"getup": ("quadson",)}
+PRESET_TERRAINS = {"getup": ("flat", "rough")}
 
 # the word of each env preset in a task's name (the robust preset is the joystick recipe)
 PRESET_WORDS = {
@@ -54,6 +60,7 @@ PRESET_WORDS = {
     "command": "Command",
     "robust": "Joystick",
     "robust_true_state": "JoystickTrueState",
+    "getup": "Getup",
 }
 
 
@@ -91,7 +98,9 @@ def _flag_sets() -> dict[str, dict]:
     out = {}
     for robot in ROBOT_NAMES:
         for preset in ENV_PRESETS:
-            for terrain in TERRAINS:
+            if robot not in PRESET_ROBOTS.get(preset, ROBOT_NAMES):
+                continue
+            for terrain in PRESET_TERRAINS.get(preset, TERRAINS):
                 flags = {"robot": robot, "env_preset": preset, "terrain": terrain}
                 out[task_name(**flags)] = flags
     # the tiled ground with its curriculum (env_config.TILES), for the sensor-only joystick policy

@@ -194,7 +194,7 @@ def test_every_switch_blends_and_no_tick_jumps():
     held = sent[k - 1]  # fallen held the targets of the tick before the fall
     np.testing.assert_allclose(sent[20:k], np.broadcast_to(sent[19], (k - 20, 12)), atol=1e-12)
     r = sup.walking.config.robot
-    target = r.clamp(r.motor_limits[:, 1])  # all-upper, then the toe-in guard
+    target = r.clamp(getup_targets(np.ones(12), r.home_motor))  # all-upper, then the guards
     w1 = 0.1 * 0.1 * (3.0 - 2.0 * 0.1)
     np.testing.assert_allclose(sent[k], held + w1 * (target - held), atol=1e-12)
     np.testing.assert_allclose(sent[k + 9], target, atol=1e-12)  # the blend ends after 10 ticks
@@ -229,7 +229,7 @@ def test_nan_imu_takes_the_safety_path_and_freezes_the_modes():
     eased = [sup.step(nan_q, np.zeros(3), HOME) for _ in range(40)][-1]
     assert eased.fault == Fault.EASING_HOME
     r = sup.walking.config.robot
-    target = r.clamp(getup_targets(np.zeros(12), r.motor_limits))
+    target = r.clamp(getup_targets(np.zeros(12), r.home_motor))
     back = sup.step(_quat(D(90)), np.zeros(3), HOME)
     w = (1 / 13) ** 2 * (3 - 2 / 13)
     np.testing.assert_allclose(back.motor_targets, eased.motor_targets + w * (target - eased.motor_targets))
@@ -252,10 +252,18 @@ def test_getup_observation_and_targets_from_hand_values():
     np.testing.assert_allclose(obs["gyro"], gyro, rtol=1e-6)
     np.testing.assert_allclose(obs["motor_pos"], motor, rtol=1e-6)
     np.testing.assert_allclose(obs["last_action"], getup.action, rtol=1e-6)
+    # 0 the home stance; t0 alone (the leg plane's swing) reaches its limits: -pi/2 at -1, +pi/2 at +1
     limits = np.tile(C.MOTOR_RANGES, (4, 1))
-    np.testing.assert_allclose(getup_targets(-np.ones(12), limits), limits[:, 0])
-    np.testing.assert_allclose(getup_targets(np.full(12, 5.0), limits), limits[:, 1])  # clipped to +1
-    np.testing.assert_allclose(getup_targets(np.zeros(12), limits), limits.mean(axis=1))
+    np.testing.assert_allclose(getup_targets(np.zeros(12), HOME), HOME, atol=1e-12)
+    t0 = np.zeros(12)
+    t0[0::3] = 1.0
+    np.testing.assert_allclose(getup_targets(t0, HOME), HOME + t0 * (limits[:, 1] - HOME), atol=1e-12)
+    np.testing.assert_allclose(getup_targets(-t0, HOME), HOME - t0 * (HOME - limits[:, 0]), atol=1e-12)
+    np.testing.assert_allclose(getup_targets(-t0, HOME)[0::3], -np.pi / 2, atol=1e-12)
+    # +5 clips to +1: every motor at its upper limit, then the toe-in guard (t5 <= t1 + 0.06)
+    out = getup_targets(np.full(12, 5.0), HOME).reshape(4, 3)
+    np.testing.assert_allclose(out[:, 0], np.pi / 2, atol=1e-12)
+    assert np.all(out[:, 2] - out[:, 1] <= C.TOE_IN_MAX + 1e-12)
 
 
 def test_config_and_policy_errors_are_one_line():
@@ -308,7 +316,7 @@ def test_an_exported_getup_file_loads_and_drives(tmp_path):
     action = policy(obs)
     np.testing.assert_allclose(out.action, np.clip(action, -1, 1), atol=1e-6)
     r = sup.walking.config.robot
-    want = r.clamp(getup_targets(action, r.motor_limits))
+    want = r.clamp(getup_targets(action, r.home_motor))
     step = r.servo_speed_rps * 0.02  # the rate limit from the targets sent before (home)
     np.testing.assert_allclose(out.motor_targets, HOME + np.clip(want - HOME, -step, step), atol=1e-5)
 
@@ -330,7 +338,7 @@ def test_closed_loop_in_mujoco_c_fall_getup_stand_walk():
     sup = _sup()
     r = sup.walking.config.robot
     lo, hi = r.motor_limits[:, 0], r.motor_limits[:, 1]
-    sup.getup.policy.action = (2.0 * (r.home_motor - lo) / (hi - lo) - 1.0).astype(np.float32)  # home
+    sup.getup.policy.action = np.zeros(12, np.float32)  # the home stance
     sup.reset(plant.read().motor_pos)
     modes, true_tilt, sent = [], [], [sup.sent]
     for k in range(230):

@@ -182,6 +182,22 @@ def test_every_committed_run_exports_and_the_deploy_loop_accepts_its_spec(run, t
     assert (policy.obs_size, policy.action_size) == (spec.size, Spec.from_json(props["action_spec"]).size)
     action = policy(np.zeros(policy.obs_size, np.float32))
     assert np.all(np.isfinite(action)) and np.all(np.abs(action) <= 1.0)
+    if meta["env_config"].get("task") == "getup":  # a get-up policy runs under the supervisor
+        from quadson_mjx.deploy_robots import robot_kinematics
+        from quadson_mjx.deploy_supervisor import GetupPolicy
+
+        robot = robot_kinematics(meta["env_config"], meta)
+        getup = GetupPolicy(policy, robot, meta["ctrl_dt_s"])
+        assert getup.obs_spec == spec and meta["motors"] == list(robot.motor_names)
+        lo, hi = robot.motor_limits[:, 0], robot.motor_limits[:, 1]
+        for _ in range(10):  # on its back, at home
+            targets, _, _ = getup.act(np.array([0.0, 1.0, 0, 0]), np.zeros(3), robot.home_motor)
+            assert (
+                np.all(np.isfinite(targets)) and np.all(targets >= lo - 1e-9) and np.all(targets <= hi + 1e-9)
+            )
+        with pytest.raises(ValueError, match="30 observations"):
+            deploy.DeployLoop(policy)  # not a walking policy
+        return
     loop = deploy.DeployLoop(policy)
     assert loop.config.obs_spec == spec and loop.config.robot.name == meta["env_config"]["robot"]
     assert meta["motors"] == list(loop.config.robot.motor_names)

@@ -20,6 +20,7 @@ NAMES = [
     "QuadsonFlat", "QuadsonRough", "QuadsonCommandFlat", "QuadsonCommandRough",
     "QuadsonJoystickFlat", "QuadsonJoystickRough",
     "QuadsonJoystickTrueStateFlat", "QuadsonJoystickTrueStateRough",
+    "QuadsonGetupFlat", "QuadsonGetupRough",
     "CaramelFlat", "CaramelRough", "CaramelCommandFlat", "CaramelCommandRough",
     "CaramelJoystickFlat", "CaramelJoystickRough",
     "CaramelJoystickTrueStateFlat", "CaramelJoystickTrueStateRough",
@@ -41,6 +42,8 @@ OLD_ENV_PRESETS["robust"] = {
     "observation": "sensors",
     "asymmetric_critic": True,
 }
+# the get-up task (Quadson only): its own environment, randomized, joint-limit rows off
+OLD_ENV_PRESETS["getup"] = {"joint_limits": False, "randomize": True, "task": "getup"}
 
 
 def old_script_config(robot, env_preset, terrain, gait, gait_action):
@@ -59,6 +62,7 @@ COMMITTED_RUNS = {
     "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
+    "results/getup_h100": ("QuadsonGetupFlat", []),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     "results/gaits/pace": ("QuadsonGaitPace", []),
@@ -102,6 +106,10 @@ def test_task_contents_by_hand():
     bound = tasks.make_task_config("QuadsonGaitBound")
     assert bound.gait == "bound" and bound.randomize and bound.reward.target_gait_speed
     assert bound.terrain == "flat" and not bound.command_tracking
+    getup = tasks.make_task_config("QuadsonGetupRough")
+    assert getup.task == "getup" and getup.terrain == "rough" and getup.randomize and not getup.pushes
+    assert getup.observation == "sensors" and getup.asymmetric_critic and getup.base_terrain_contact
+    assert getup.episode_length_s == 6.0  # the 5 s to stand and the 1 s hold
     caramel = tasks.make_task_config("CaramelCommandRough")
     assert caramel.robot == "caramel" and caramel.command_tracking and not caramel.randomize
 
@@ -183,7 +191,8 @@ def test_train_task_and_flag_spellings_give_one_config(name, monkeypatch, tmp_pa
     by_flags = run([*argv, "--run-dir", str(tmp_path / "b")])
     assert to_json(by_task) == to_json(by_flags) == to_json(tasks.make_task_config(name))
     assert to_json(by_flags) == to_json(old_script_config(gait_action=False, **{"gait": None, **flags}))
-    if flags["robot"] == "quadson":  # Caramel's gait cannot be scaled (check_env_config refuses)
+    # Caramel's gait cannot be scaled, and the get-up task has no gait (check_env_config refuses)
+    if flags["robot"] == "quadson" and flags["env_preset"] != "getup":
         with_action = run(["--task", name, "--gait-action", "--run-dir", str(tmp_path / "c")])
         assert to_json(with_action) == to_json(
             run(["--gait-action", *argv, "--run-dir", str(tmp_path / "d")])

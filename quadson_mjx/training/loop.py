@@ -132,9 +132,9 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     from brax.training.agents.ppo import train as ppo
 
     from quadson_mjx import compat
-    from quadson_mjx.env import LocomotionEnv
     from quadson_mjx.env_config import check_env_config
     from quadson_mjx.env_model import scene_xml_text
+    from quadson_mjx.envs import make_env
     from quadson_mjx.mcap_log import McapLog
     from quadson_mjx.randomize import randomization_fn
     from quadson_mjx.wrappers import wrap_for_training
@@ -179,8 +179,8 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         created = _claim_new_run_dir(run_dir, held)
     try:
         with compat.mjx_local_device():
-            env = LocomotionEnv(env_cfg)
-            eval_env = LocomotionEnv(env_cfg)
+            env = make_env(env_cfg)
+            eval_env = make_env(env_cfg)
         guards.check_memory(env, ppo_cfg.num_envs, local_devices_to_use(ppo_cfg))
     except BaseException:
         if created:
@@ -286,9 +286,13 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             print(terrain_tiles.curriculum_line(env.tiles, summary), file=stream)
         length = record.get("eval/avg_episode_length")
         if length:  # brax sums per-step metrics over an episode; per-step means are what one reads
-            for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset", "vx_sq_err", "vy_sq_err", "yaw_rate_sq_err", "base_height", "base_below_terrain", "fall", "off_field"):  # fmt: skip
+            for name in ("forward_speed", "abs_roll", "abs_pitch", "ik_invalid_legs", "nan_reset", "vx_sq_err", "vy_sq_err", "yaw_rate_sq_err", "base_height", "base_below_terrain", "fall", "off_field", "tilt", "standing", "legs_overlap", "chain_guarded_legs", "max_motor_speed"):  # fmt: skip
                 if f"eval/episode_{name}" in record:
                     record[f"eval/mean_{name}"] = record[f"eval/episode_{name}"] / length
+        if "eval/episode_success" in record:  # the get-up task: the share of drops stood up in time
+            print(
+                f"  getup: success {record['eval/episode_success']:.1%} of the evaluation drops", file=stream
+            )
         if step not in logged_steps:  # a resumed run re-evaluates its checkpoint: logged already
             with log_lock:
                 log.log("/train/metrics", _nest(record), time.time_ns())

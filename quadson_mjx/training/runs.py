@@ -230,10 +230,10 @@ def load_policy(run_dir: Path, checkpoint: Path | None = None, deterministic: bo
     """-> (policy(obs, key) -> (action, extras), env_cfg, ppo_cfg, params) from a run directory."""
     from brax.training.agents.ppo import networks as ppo_networks
 
-    from quadson_mjx.env import LocomotionEnv
+    from quadson_mjx.envs import make_env
 
     env_cfg, ppo_cfg = load_run_config(run_dir)
-    env = LocomotionEnv(env_cfg)
+    env = make_env(env_cfg)
     path = checkpoint or latest_checkpoint(run_dir)[0]
     params = load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
     nets = make_networks(env.observation_size, env.action_size, ppo_cfg)

@@ -1,0 +1,110 @@
+"""A get-up policy over many drops, per start class: success and time to stand, as the task defines
+them (quadson_mjx.getup_env: upright within 10 deg and the base within 2 cm of the standing height,
+held 1 s, begun within 5 s of the drop).
+
+Every drop is a fresh start of the task (getup_start: class, orientation, motor angles, height) on
+its own randomized model (the run's randomization ranges) with the run's sensor model; the policy
+acts with its mean action, as deployed. One episode per drop, 6 s.
+
+    rows, total = evaluate_getup(env_cfg, policy, terrain="flat", drops=512, seed=0)
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.getup_env import GetupEnv
+from quadson_mjx.randomize import randomization_fn
+from quadson_mjx.robots.quadson.getup_start import CLASSES
+from quadson_mjx.wrappers import wrap_for_training
+
+GROUNDS = {"flat": "flat", "stones": "rough"}  # the evaluation's word -> env.terrain
+
+
+def getup_env_config(env_cfg, ground: str):
+    """The run's env config (a get-up run's) on `ground` ("flat" or "stones"), every episode a drop."""
+    cfg = with_added_keys(env_cfg)
+    if cfg.task != "getup":
+        raise ValueError(f"get-up evaluation: the run trained env.task={cfg.task!r}, not getup")
+    if ground not in GROUNDS:
+        raise ValueError(f"get-up evaluation: ground {ground!r}; choose from {list(GROUNDS)}")
+    return apply_overrides(cfg, [f"terrain={GROUNDS[ground]}", "getup.stand_start_prob=0.0"], prefix="env.")
+
+
+def evaluate_getup(env_cfg, policy, ground: str = "flat", drops: int = 512, seed: int = 0):
+    """policy(obs, key) -> (action, extras) (training.load_policy) of a get-up run whose env config
+    is env_cfg, over `drops` drops on `ground` -> (rows: one per start class of getup_start.CLASSES
+    with drops, successes, success share, time to stand [s] (mean, median, 90th percentile, of the
+    successes), share of steps with legs overlapping and with a chain-guarded leg, the largest motor
+    speed [rad/s]; total: the same over every drop, plus non-finite resets)."""
+    if drops < 1:
+        raise ValueError(f"get-up evaluation: drops {drops}: need at least 1")
+    cfg = getup_env_config(env_cfg, ground)
+    env = GetupEnv(cfg)
+    n_steps = env.episode_length
+    rand = None
+    if cfg.randomize:
+        rand = functools.partial(
+            randomization_fn(cfg.randomization, env.base_body),
+            rng=jax.random.split(jax.random.PRNGKey(seed + 1), drops),
+        )
+    w = wrap_for_training(env, n_steps + 1, randomization_fn=rand)
+
+    @jax.jit
+    def run(key):
+        k_reset, k_run = jax.random.split(key)
+        state = w.reset(jax.random.split(k_reset, drops))
+
+        def one(carry, k):
+            s, acc = carry
+            action, _ = policy(s.obs, k)
+            s = w.step(s, action)
+            m = s.metrics
+            acc = {
+                "success": acc["success"] + m["success"],
+                "time_to_stand": acc["time_to_stand"] + m["time_to_stand"],
+                "overlap_steps": acc["overlap_steps"] + m["legs_overlap"],
+                "guarded_steps": acc["guarded_steps"] + (m["chain_guarded_legs"] > 0),
+                "max_motor_speed": jnp.maximum(acc["max_motor_speed"], m["max_motor_speed"]),
+                "nan_reset": acc["nan_reset"] + m["nan_reset"],
+            }
+            return (s, acc), None
+
+        zeros = jnp.zeros(drops)
+        acc = {k: zeros for k in ("success", "time_to_stand", "overlap_steps", "guarded_steps", "max_motor_speed", "nan_reset")}  # fmt: skip
+        (_, acc), _ = jax.lax.scan(one, (state, acc), jax.random.split(k_run, n_steps))
+        return acc, state.info["start_class"], state.info["start_valid"]
+
+    acc, label, valid = run(jax.random.PRNGKey(seed))
+    acc = {k: np.asarray(v) for k, v in acc.items()}
+    label, valid = np.asarray(label), np.asarray(valid)
+    success = acc["success"] > 0
+
+    def row(i) -> dict:
+        times = acc["time_to_stand"][i & success]
+        return {
+            "drops": int(i.sum()),
+            "successes": int((i & success).sum()),
+            "success": float(success[i].mean()) if i.any() else float("nan"),
+            "time_to_stand_mean_s": float(times.mean()) if times.size else float("nan"),
+            "time_to_stand_median_s": float(np.median(times)) if times.size else float("nan"),
+            "time_to_stand_p90_s": float(np.percentile(times, 90)) if times.size else float("nan"),
+            "overlap_step_share": float(acc["overlap_steps"][i].sum() / (n_steps * max(i.sum(), 1))),
+            "guarded_step_share": float(acc["guarded_steps"][i].sum() / (n_steps * max(i.sum(), 1))),
+            "max_motor_speed_rps": float(acc["max_motor_speed"][i].max()) if i.any() else float("nan"),
+        }
+
+    rows = [{"start_class": c, **row(label == k)} for k, c in enumerate(CLASSES)]
+    total = {
+        "ground": ground,
+        **row(np.ones(drops, bool)),
+        "non_finite_resets": int(acc["nan_reset"].sum()),
+        "starts_without_valid_pose": int((~valid).sum()),
+    }
+    return rows, total

@@ -1,0 +1,225 @@
+"""The get-up task (quadson_mjx.getup_env): its action guard against the five-bar's own closure test,
+its starts and model against MuJoCo C, its success measure on hand-worked cases, and its observation
+against the robot-side supervisor's on the same sensor stream."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from quadson_mjx import obs_spec
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.deploy_supervisor import getup_targets
+from quadson_mjx.env_config import env_config
+from quadson_mjx.getup_env import STANDING_CLASS, GetupEnv
+from quadson_mjx.robots.quadson import chain_guard, fivebar, getup_start
+from quadson_mjx.robots.quadson import constants as C
+
+ROOT = Path(__file__).resolve().parents[1]
+N = 32  # environments of the compiled batch
+
+
+@pytest.fixture(scope="session")
+def getup():
+    """The task's env (half the starts standing) with its reset and step jitted and vmapped once."""
+    cfg = apply_overrides(
+        env_config(task="getup", randomize=True), ["getup.stand_start_prob=0.5"], prefix="env."
+    )
+    env = GetupEnv(cfg)
+    return env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+
+
+@pytest.fixture(scope="session")
+def rollout(getup):
+    """60 ticks (1.2 s) of zero actions from N starts: (first state, per-tick metrics, last state)."""
+    env, reset, step = getup
+    s0 = reset(jax.random.split(jax.random.key(11), N))
+    s, metrics = s0, []
+    for _ in range(60):
+        s = step(s, jnp.zeros((N, 12)))
+        metrics.append({k: np.asarray(v) for k, v in s.metrics.items()})
+    return s0, metrics, s
+
+
+def test_chain_slack_agrees_with_the_five_bar_closure_test():
+    """chain_slack >= 0 at zero margin is fivebar.chain_closes (its own law-of-cosines bound), on
+    10^4 random motor angles inside and around the limits."""
+    rng = np.random.default_rng(0)
+    angles = rng.uniform(-1.0, 4.5, (10_000, 3))
+    closes = np.asarray(fivebar.chain_closes(jnp.asarray(angles)))
+    slack = chain_guard.chain_slack(angles, np, margin_m=0.0)
+    assert 0.2 < closes.mean() < 0.95  # both sides sampled
+    decided = np.abs(slack) > 1e-6  # float32 on the JAX side
+    assert np.array_equal(slack[decided] >= 0.0, closes[decided])
+
+
+def test_guarded_targets_are_reachable_and_numpy_equals_jax(getup):
+    """Random actions (beyond [-1, 1] too): every target inside the limits, the toe-in guard and the
+    chain band with its 5 mm margin; a target that already was is unchanged; the supervisor's numpy
+    targets equal the environment's JAX ones (float32)."""
+    env = getup[0]
+    rng = np.random.default_rng(1)
+    actions = rng.uniform(-1.3, 1.3, (2000, 12))
+    home = np.asarray(env._home_motor).reshape(12).astype(np.float64)
+    np_targets = np.stack([getup_targets(a, home) for a in actions])
+    jax_targets, moved = jax.jit(jax.vmap(env.motor_targets))(jnp.asarray(actions, jnp.float32))
+    np.testing.assert_allclose(np.asarray(jax_targets), np_targets, atol=2e-5)
+    legs = np_targets.reshape(-1, 4, 3)
+    lo, hi = C.MOTOR_RANGES[:, 0], C.MOTOR_RANGES[:, 1]
+    assert np.all(legs >= lo - 1e-9) and np.all(legs <= hi + 1e-9)
+    assert np.all(legs[..., 2] - legs[..., 1] <= C.TOE_IN_MAX + 1e-9)
+    assert np.all(chain_guard.chain_slack(legs) >= -1e-9)
+    moved = np.asarray(moved)
+    assert 0.05 < moved.mean() < 0.95  # the guard both acts and stays out of the way
+    raw = home + np.where(actions < 0, np.clip(actions, -1, 1) * (home - np.tile(lo, 4)), np.clip(actions, -1, 1) * (np.tile(hi, 4) - home))  # fmt: skip
+    kept = chain_guard.range_and_toe_in(raw.reshape(-1, 4, 3))
+    np.testing.assert_allclose(legs[~moved], kept[~moved], atol=1e-12)
+    np.testing.assert_allclose(getup_targets(np.zeros(12), home), home, atol=1e-12)
+
+
+def test_starts_are_inside_the_limits_and_clear_of_the_ground_in_mujoco_c(rollout, getup):
+    """Every drop: motor angles inside the limits and the toe-in guard, chains closed, legs apart,
+    and in MuJoCo C (the task's own model, legs touching the ground) no contact at all; the
+    standing starts stand on their feet."""
+    env = getup[0]
+    s0 = rollout[0]
+    m = env.mj_model
+    d = mujoco.MjData(m)
+    qpos = np.asarray(s0.pipeline_state.qpos, np.float64)
+    cls = np.asarray(s0.info["start_class"])
+    assert 0 < np.sum(cls == STANDING_CLASS) < N
+    motor = qpos[:, np.asarray(env._motor_qpos)].reshape(-1, 4, 3)
+    assert np.all(np.asarray(fivebar.within_limits(jnp.asarray(motor))))
+    assert np.all(
+        np.asarray(jax.vmap(getup_start.self_clearance)(jnp.asarray(motor[cls != STANDING_CLASS]))) > 0.0
+    )
+    feet = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in env.robot.foot_geoms()}
+    for q, c in zip(qpos, cls, strict=True):
+        d.qpos[:] = q
+        mujoco.mj_forward(m, d)
+        geoms = {int(g) for g in d.contact.geom.ravel()[: 2 * d.ncon]} - {0}
+        if c == STANDING_CLASS:
+            assert geoms <= feet  # only the feet touch
+        else:
+            assert d.ncon == 0
+            lowest = min(float(d.geom_xpos[g, 2]) for g in range(1, m.ngeom))
+            assert lowest > 0.15  # every geom centre well above the ground (drops are 0.2-0.5 m)
+
+
+def test_zero_action_success_by_hand(rollout, getup):
+    """Zero actions hold the home stance: a standing start stands from the first tick, so its 1 s
+    hold completes on tick 50 (1.0 s / 20 ms), once, and the stand began at 0 s. A drop onto the back
+    with the legs at home stays on its back (tilt > 90 deg) and never succeeds."""
+    env = getup[0]
+    s0, metrics, last = rollout
+    cls = np.asarray(s0.info["start_class"])
+    stand = cls == STANDING_CLASS
+    success = np.stack([mt["success"] for mt in metrics])  # (60, N)
+    assert np.all(success[49, stand] == 1.0) and np.all(success[:, stand].sum(0) == 1.0)
+    assert np.all(np.stack([mt["time_to_stand"] for mt in metrics])[49, stand] == 0.0)
+    np.testing.assert_allclose(np.asarray(last.info["success_s"])[stand], 0.0)
+    height = metrics[-1]["base_height"][stand]
+    assert np.all(np.abs(height - env.stand_height) < 0.02)
+    back = cls == getup_start.CLASSES.index("back")
+    assert back.any()
+    assert np.all(success[:, back] == 0.0) and np.all(metrics[-1]["tilt"][back] > np.pi / 2)
+    assert all(np.all(mt["nan_reset"] == 0) for mt in metrics)
+
+
+def test_legs_touch_the_ground_in_the_task_model(rollout, getup):
+    """A drop lands on its links and hips, not only on its feet: in MuJoCo C, 1 s after a drop of
+    the batch, contacts involve leg geoms other than the feet, and no geom centre is below the
+    ground by more than its size (nothing falls through)."""
+    env = getup[0]
+    s0 = rollout[0]
+    m = env.mj_model
+    d = mujoco.MjData(m)
+    cls = np.asarray(s0.info["start_class"])
+    k = int(np.flatnonzero(cls == getup_start.CLASSES.index("back"))[0])
+    d.qpos[:] = np.asarray(s0.pipeline_state.qpos[k], np.float64)
+    d.ctrl[:] = np.asarray(s0.pipeline_state.ctrl[k], np.float64)
+    feet = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in env.robot.foot_geoms()}
+    touched = set()
+    for _ in range(250):  # 1 s at 4 ms
+        mujoco.mj_step(m, d)
+        touched |= {int(g) for g in d.contact.geom.ravel()[: 2 * d.ncon]}
+    assert touched - feet - {0}, "no leg link or hip touched the ground"
+    assert np.min(d.geom_xpos[1:, 2] + m.geom_rbound[1:]) > 0.0
+
+
+def test_actor_sees_the_robots_sensors_and_the_critic_more(getup):
+    env = getup[0]
+    assert env.obs_spec == obs_spec.getup_observation(C.MOTOR_JOINTS)
+    assert env.observation_size == {"state": (30,), "privileged_state": (env.critic_spec.size,)}
+    actor_names = set(env.obs_spec.names)
+    critic_names = set(env.critic_spec.names)
+    assert actor_names < critic_names
+    assert not {n for n in critic_names - actor_names if not n.startswith(("true_", "base_height", "foot_", "ground_", "physics", "sensor_model"))}  # fmt: skip
+
+
+def test_env_and_supervisor_build_one_observation():
+    """The environment's observation of a physics state (no sensor noise) and the supervisor's
+    get-up observer fed that state's IMU quaternion, gyro and encoders agree to float32."""
+    from quadson_mjx.deploy import DeployLoop
+    from quadson_mjx.deploy_supervisor import GetupPolicy
+
+    env = GetupEnv(env_config(task="getup"))
+    s = env.reset(jax.random.key(4))
+    info = dict(s.info)
+    info["last_action"] = jnp.linspace(-1.0, 1.0, 12)
+    qpos = np.asarray(s.pipeline_state.qpos, np.float64)
+    qvel = np.zeros(env.sys.nv)
+    qvel[3:6] = [0.3, -0.2, 0.1]
+    obs = np.asarray(env.observation(qpos, qvel, info))
+
+    class _Policy:
+        obs_size, action_size = 30, 12
+
+        def __call__(self, o):
+            return np.asarray(info["last_action"], np.float32)
+
+    from tests.test_deploy_supervisor import _Walk  # the walking loop's stand-in
+
+    robot = DeployLoop(_Walk()).config.robot
+    g = GetupPolicy(_Policy(), robot, 0.02)
+    res = env.config.sensor.encoder_resolution_rad  # what 12-bit encoders report of the true angles
+    encoders = np.round(qpos[np.asarray(env._motor_qpos)] / res) * res
+    g.act(qpos[3:7], qvel[3:6], encoders)  # commits last_action
+    want = g.act(qpos[3:7], qvel[3:6], encoders)[2]
+    np.testing.assert_allclose(obs, want, atol=1e-6)
+
+
+def test_eval_cli_bad_input_is_one_line_and_exit_2(tmp_path):
+    cases = [
+        (["--run", str(tmp_path)], "not a training run directory"),
+        (["--run", str(ROOT / "results/tiles_h100")], "not getup"),
+        (["--run", str(ROOT / "results/getup_h100"), "--ground", "mud"], "--ground mud"),
+        (["--run", str(ROOT / "results/getup_h100"), "--drops", "0"], "--drops 0"),
+    ]
+    for argv, words in cases:
+        res = subprocess.run([sys.executable, str(ROOT / "eval/getup.py"), *argv], capture_output=True, text=True, cwd=ROOT)  # fmt: skip
+        assert res.returncode == 2, res.stderr
+        assert res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
+
+
+def test_committed_policy_evaluates_on_the_cpu():
+    """The committed run's policy through the evaluation (the production path: wrappers, randomized
+    models, the jitted scan), 4 drops on flat ground: one row per class, counts add up."""
+    from quadson_mjx.getup_eval import evaluate_getup
+    from quadson_mjx.training import load_policy
+
+    policy, env_cfg, _, _ = load_policy(ROOT / "results/getup_h100")
+    rows, total = evaluate_getup(env_cfg, policy, "flat", drops=4, seed=0)
+    assert [r["start_class"] for r in rows] == list(getup_start.CLASSES)
+    assert sum(r["drops"] for r in rows) == total["drops"] == 4
+    assert total["non_finite_resets"] == 0 and 0 <= total["successes"] <= 4
+    saved = json.loads((ROOT / "results/getup_h100/eval_gpu.json").read_text())
+    assert set(saved["grounds"]) == {"flat", "stones"}
