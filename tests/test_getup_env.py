@@ -223,3 +223,26 @@ def test_committed_policy_evaluates_on_the_cpu():
     assert total["non_finite_resets"] == 0 and 0 <= total["successes"] <= 4
     saved = json.loads((ROOT / "results/getup_h100/eval_gpu.json").read_text())
     assert set(saved["grounds"]) == {"flat", "stones"}
+
+
+def test_back_reach_bounds_against_mujoco_c_and_hand_values():
+    """The back's reachability report: the left/right mirror of the robot makes the sideways range
+    of the centre of mass symmetric, the home stance's centre of mass (MuJoCo C's subtree_com at
+    the home keyframe) lies inside both ranges, and the hip box alone cannot reach the ground: its
+    largest extent across the leg plane is sqrt(0.025^2 + 0.02^2) = 32 mm < the box's 40 mm, so the
+    reach (links and feet) stays within a leg's radius and a foot's of the top face."""
+    from quadson_mjx.robots.quadson import getup_reach
+    from quadson_mjx.robots.quadson import model as quadson_model
+
+    m = quadson_model.load_model("flat")
+    r = getup_reach.back_reach(m, samples=400, seed=1)
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home"))
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_comPos(m, d)
+    home = d.subtree_com[1] - d.qpos[:3]  # body frame: the home keyframe's base is not rotated
+    assert r["com_y_m"][0] < home[1] < r["com_y_m"][1] and r["com_x_m"][0] < home[0] < r["com_x_m"][1]
+    assert abs(r["com_y_m"][0] + r["com_y_m"][1]) < 2e-3  # mirror symmetric (400 draws per leg)
+    assert np.hypot(0.025, 0.02) < C.BASE_HALF_SIZE[2]
+    assert all(0.0 < x < C.LINK_RADIUS + 2 * C.FOOT_RADIUS for x in r["reach_m"])
+    assert r["can_push"] and not r["can_tip_sideways"] and not r["can_tip_lengthwise"]
