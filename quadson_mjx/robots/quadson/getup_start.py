@@ -165,7 +165,13 @@ def _capsule_box_gap(seg_a, seg_b, radius, center, rot, half):
     return jnp.min(sdf, -1) - 0.5 * spacing - radius
 
 
-_PAIRS = np.triu_indices(4, 1)  # the 6 pairs of legs
+_PAIRS = tuple(tuple(int(k) for k in side) for side in np.triu_indices(4, 1))  # the 6 leg pairs
+
+
+def _rows(x, rows):
+    """x's rows by static Python indices: static slices, not a gather (a gather traced under
+    jax.enable_x64 after one traced without it mixes int32 and int64 indices in jax 0.10)."""
+    return jnp.stack([x[k] for k in rows])
 
 
 def _base_gaps(geometry):
@@ -181,13 +187,14 @@ def _cross_gap(geometry):
     """() smallest gap [m] between the collision geoms of two different legs."""
     seg_a, seg_b, radii, hip_c, hip_r, hip_h = geometry
     i, j = _PAIRS
+    a_i, b_i, a_j, b_j = _rows(seg_a, i), _rows(seg_b, i), _rows(seg_a, j), _rows(seg_b, j)
     caps = _seg_seg_distance(
-        seg_a[i][:, :, None], seg_b[i][:, :, None], seg_a[j][:, None, :], seg_b[j][:, None, :]
+        a_i[:, :, None], b_i[:, :, None], a_j[:, None, :], b_j[:, None, :]
     ) - (radii[:, None] + radii[None, :])  # (6, 5, 5)
     box = jax.vmap(_capsule_box_gap, in_axes=(0, 0, None, 0, 0, None))
     hips = jnp.minimum(
-        jnp.min(box(seg_a[j], seg_b[j], radii, hip_c[i], hip_r[i], hip_h)),
-        jnp.min(box(seg_a[i], seg_b[i], radii, hip_c[j], hip_r[j], hip_h)),
+        jnp.min(box(a_j, b_j, radii, _rows(hip_c, i), _rows(hip_r, i), hip_h)),
+        jnp.min(box(a_i, b_i, radii, _rows(hip_c, j), _rows(hip_r, j), hip_h)),
     )
     return jnp.minimum(jnp.min(caps), hips)
 
