@@ -1,0 +1,255 @@
+"""Knocked down while walking: the on-robot supervisor (quadson_mjx.deploy_supervisor) over an exported
+walking policy and an exported get-up policy, closed loop against sim2sim's MuJoCo C plant
+(quadson_mjx.sim2sim_plant: full contacts, servo model with torque-speed limit and 20 ms latency, IMU
+and encoder noise, randomized model as sim2sim's --randomize).
+
+    summary, rows = run_knockdowns("walk.onnx", "getup.onnx", n=50, seed=0, terrain="flat")
+
+One trial: the plant reset on the home stance (random heading, a fresh randomized model and sensor
+biases), the supervisor walks it at FORWARD_COMMAND for walk_s, then one velocity kick of the base
+(`kick`: a random horizontal direction, the base pushed that way at 0.2-0.6 m/s and tipped toward it
+at 25-35 rad/s; while the supervisor still walks REKICK_S later and the robot is upright, another
+kick, MAX_KICKS in all), then the supervisor runs for up to seconds_per_trial from the last kick: fall
+detection, get-up attempts, standing_hold, walking. When walking resumes the trial runs hold_s more.
+Success: walking resumed within seconds_per_trial of the last kick and, for the hold_s after, the
+mode stayed walking and the true tilt (the simulator's base, not the IMU) below UPRIGHT_TILT_RAD.
+Times in a row are from the last kick.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from quadson_mjx import deploy
+from quadson_mjx import sim2sim as S
+from quadson_mjx import sim2sim_plant as P
+from quadson_mjx.deploy_supervisor import Mode, Supervisor, tilt
+from quadson_mjx.quat import quat_rotate
+from quadson_mjx.robots import get_robot
+
+FORWARD_COMMAND = (0.25, 0.0, 0.0)  # vx [m/s], vy [m/s], yaw rate [rad/s] while walking
+KICK_SPEED_MPS = (0.2, 0.6)  # horizontal base speed added by the kick, uniform [m/s]
+KICK_RATE_RPS = (25.0, 35.0)  # angular rate added about the horizontal axis across it, uniform [rad/s]
+MAX_KICKS, REKICK_S = 3, 1.0  # while the supervisor still walks, kick again this long after [s]
+UPRIGHT_TILT_RAD = math.radians(30.0)  # the success's bound on the true tilt
+LATENCY_S = 0.02  # servo latency of the plant [s], sim2sim's default
+
+
+class _Tap:
+    """The walking DeployLoop, remembering its last StepResult (for the recording)."""
+
+    def __init__(self, loop):
+        self.loop, self.last = loop, None
+
+    def step(self, *args, **kwargs):
+        self.last = self.loop.step(*args, **kwargs)
+        return self.last
+
+    def __getattr__(self, name):
+        return getattr(self.loop, name)
+
+
+def kick(plant, rng) -> dict:
+    """Adds a knock-down to the plant's base velocity: a horizontal direction u at angle phi in the body
+    frame (uniform), the base's linear velocity += speed u (world frame), its angular velocity +=
+    rate (z x u) (body frame: the top tips toward u). -> {"dir_deg", "speed_mps", "rate_rps"}."""
+    phi = float(rng.uniform(-math.pi, math.pi))
+    speed, rate = float(rng.uniform(*KICK_SPEED_MPS)), float(rng.uniform(*KICK_RATE_RPS))
+    u = np.array([math.cos(phi), math.sin(phi), 0.0])
+    world = quat_rotate(plant.d.qpos[3:7], u)
+    world[2] = 0.0
+    plant.d.qvel[0:3] += speed * world / max(float(np.linalg.norm(world)), 1e-9)
+    plant.d.qvel[3:6] += rate * np.array([-u[1], u[0], 0.0])  # free joint: angular velocity in body frame
+    return {"dir_deg": math.degrees(phi), "speed_mps": speed, "rate_rps": rate}
+
+
+def build(walk_file, getup_file, terrain: str = "flat", randomize: bool = True, sensors: bool = True):
+    """Loads the two policies -> (Supervisor over a DeployLoop of walk_file, Plant of sim2sim on
+    `terrain` with the walking policy's randomization ranges, the walking policy's env config)."""
+    if terrain not in P.TERRAINS:
+        raise ValueError(f"unknown terrain {terrain!r}: {', '.join(P.TERRAINS)}")
+    walk = deploy.load_policy(walk_file)
+    sup = Supervisor(_Tap(deploy.DeployLoop(walk)), deploy.load_policy(getup_file))
+    env_cfg = walk.meta["env_config"]
+    robot = get_robot(env_cfg.get("robot", "quadson"))
+    plant = S.make_plant(
+        robot, env_cfg, terrain, LATENCY_S, 0, randomize, False, sensors=P.SensorParams(enabled=sensors)
+    )
+    return sup, plant, env_cfg
+
+
+def run_trial(sup, plant, rng, walk_s=2.0, seconds_per_trial=10.0, hold_s=2.0, recorder=None) -> dict:
+    """One knock-down (the module's docstring) with the plant's rng already seeded; rng draws the heading
+    and the kick. -> the trial's row: times [s] from the kick, tilts [deg], counts."""
+    dt = sup.dt
+    r = sup.walking.config.robot
+    lo, hi = r.motor_limits[:, 0], r.motor_limits[:, 1]
+    plant.reset((0.0, 0.0), float(rng.uniform(-math.pi, math.pi)))
+    rd = plant.read()
+    sup.reset(rd.motor_pos)
+    sup.walking.reset_heading(rd.imu_quat_wxyz)
+    needs_vel = sup.walking.needs_lin_vel
+    k_kick = k_next = int(round(walk_s / dt))
+    k_end = k_kick + int(round(seconds_per_trial / dt))
+    kicks = []
+    row = {"detected": False, "fell_before_kick": False, "t_detect_s": None, "t_standing_hold_s": None}
+    row |= {"t_walking_s": None, "attempts": 0, "timeouts": 0, "tilt_at_getup_deg": None}
+    bad, max_tilt, held, prev, k = 0, 0.0, True, Mode.WALKING, 0
+    faults0 = sup.fault_counts
+    while k < k_end:
+        if k == k_next and not row["detected"] and tilt(plant.d.qpos[3:7]) >= UPRIGHT_TILT_RAD:
+            k_next += 1  # walking on, but not upright: wait for it
+        elif k == k_next and not row["detected"]:  # the first kick, or another: the last did not fell it
+            kicks.append(kick(plant, rng))
+            k_kick, k_end = k, k + int(round(seconds_per_trial / dt))
+            k_next = k + int(round(REKICK_S / dt)) if len(kicks) < MAX_KICKS else -1
+        rd = plant.read()
+        vel = plant.truth()["lin_vel"] if needs_vel else None
+        out = sup.step(rd.imu_quat_wxyz, rd.gyro, rd.motor_pos, command=FORWARD_COMMAND, base_lin_vel=vel)
+        m = out.motor_targets
+        bad += int(not (np.all(np.isfinite(m)) and np.all(m >= lo - 1e-9) and np.all(m <= hi + 1e-9)))
+        plant.send(m)
+        plant.advance(dt)
+        true_tilt = tilt(plant.d.qpos[3:7])
+        t = (k - k_kick + 1) * dt  # the end of this tick, from the kick
+        if out.mode is not prev:
+            if k < k_kick:
+                row["fell_before_kick"] = True
+            if prev is Mode.WALKING and k >= k_kick and not row["detected"]:  # walking left
+                row["detected"], row["t_detect_s"] = True, t - dt
+            if out.mode is Mode.GETTING_UP and prev is not Mode.STANDING_HOLD:  # a new attempt
+                row["attempts"] += 1
+                if row["tilt_at_getup_deg"] is None:
+                    row["tilt_at_getup_deg"] = math.degrees(true_tilt)
+            row["timeouts"] += int(out.mode is Mode.RESTING)
+            if out.mode is Mode.STANDING_HOLD and row["t_standing_hold_s"] is None:
+                row["t_standing_hold_s"] = t - dt
+            if out.mode is Mode.WALKING and row["detected"] and row["t_walking_s"] is None:
+                row["t_walking_s"] = t - dt
+                k_end = k + int(round(hold_s / dt))  # the hold: hold_s of ticks from this one on
+        if row["t_walking_s"] is not None:
+            held = held and out.mode is Mode.WALKING and true_tilt < UPRIGHT_TILT_RAD
+        if k >= k_kick:
+            max_tilt = max(max_tilt, true_tilt)
+        if recorder is not None:
+            _record(recorder, k, plant, rd, out, sup, k == 0 or out.mode is not prev)
+        prev, k = out.mode, k + 1
+    return row | {
+        "kicks": kicks,  # the last one felled the robot, if one did
+        "success": bool(row["t_walking_s"] is not None and held),
+        "max_tilt_deg": math.degrees(max_tilt),
+        "final_tilt_deg": math.degrees(true_tilt),
+        "final_mode": str(out.mode),
+        "sim_s": k * dt,
+        "bad_target_ticks": bad,
+        "fault_ticks": {
+            n: c - faults0.get(n, 0) for n, c in sup.fault_counts.items() if c > faults0.get(n, 0)
+        },
+    }
+
+
+def _record(recorder, k, plant, readings, out, sup, switched: bool) -> None:
+    """One tick into sim2sim_record's Recorder; the supervisor's mode switches as log lines."""
+    w = sup.walking.last if out.mode is Mode.WALKING else None
+    nan = np.full((4, 3), np.nan)
+    step = SimpleNamespace(
+        obs=np.zeros(0) if w is None else w.obs,
+        action=(w.action if w is not None else out.action if out.action is not None else np.zeros(12)),
+        foot_targets=nan if w is None else w.foot_targets,
+        valid=np.ones(4, bool) if w is None else w.valid,
+        motor_targets=out.motor_targets,
+    )
+    recorder.step(k, plant, readings, step, np.asarray(FORWARD_COMMAND), plant.truth(), False)
+    if recorder.writer is not None and switched:
+        recorder.writer.log(recorder.t_ns, "info", f"supervisor: {out.mode} (tilt {out.tilt_rad:.2f} rad)")
+
+
+def settings(seconds_per_trial: float = 10.0, walk_s: float = 2.0, hold_s: float = 2.0) -> dict:
+    """The trial's constants, for a results file."""
+    return {
+        "command": list(FORWARD_COMMAND),
+        "kick_speed_mps": list(KICK_SPEED_MPS),
+        "kick_rate_rps": list(KICK_RATE_RPS),
+        "max_kicks": MAX_KICKS,
+        "rekick_s": REKICK_S,
+        "walk_s": walk_s,
+        "seconds_per_trial": seconds_per_trial,
+        "hold_s": hold_s,
+        "upright_tilt_deg": math.degrees(UPRIGHT_TILT_RAD),
+        "latency_s": LATENCY_S,
+        "randomized_model": True,
+        "sensor_noise": True,
+    }
+
+
+def summarize(rows) -> dict:
+    """Trial rows -> success rate (with a 95 % Wilson interval), detected falls, median times [s]."""
+    n = len(rows)
+    wins = sum(r["success"] for r in rows)
+    z, p = 1.96, wins / n
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    mid = (p + z * z / (2 * n)) / (1 + z * z / n)
+    med = lambda key: float(np.median(v)) if (v := [r[key] for r in rows if r[key] is not None]) else None  # noqa: E731
+    back = [r for r in rows if (r["tilt_at_getup_deg"] or 0.0) > 150.0]
+    return {
+        "trials": n,
+        "successes": wins,
+        "success_rate": p,
+        "success_rate_95": [mid - half, mid + half],
+        "detected": sum(r["detected"] for r in rows),
+        "kicks": sum(len(r["kicks"]) for r in rows),
+        "fell_before_kick": sum(r["fell_before_kick"] for r in rows),
+        "walking_resumed": sum(r["t_walking_s"] is not None for r in rows),
+        "median_t_detect_s": med("t_detect_s"),
+        "median_t_standing_hold_s": med("t_standing_hold_s"),
+        "median_t_walking_s": med("t_walking_s"),
+        "attempts": sum(r["attempts"] for r in rows),
+        "trials_with_timeout": sum(r["timeouts"] > 0 for r in rows),
+        "on_back_at_getup": len(back),
+        "successes_on_back": sum(r["success"] for r in back),
+        "bad_target_ticks": sum(r["bad_target_ticks"] for r in rows),
+    }
+
+
+def run_knockdowns(
+    walk_file,
+    getup_file,
+    n: int = 50,
+    seed: int = 0,
+    terrain: str = "flat",
+    seconds_per_trial: float = 10.0,
+    record=None,
+    walk_s: float = 2.0,
+    hold_s: float = 2.0,
+    randomize: bool = True,
+    progress=None,
+) -> tuple[dict, list[dict]]:
+    """n knock-downs (the module's docstring), trial i seeded by (seed, i) alone. record: None or an
+    .mcap path for trial 0 (sim2sim_record's Recorder). progress(i, row) after each. -> (summary, rows)."""
+    if n < 1:
+        raise ValueError(f"n {n}: need at least 1 trial")
+    sup, plant, env_cfg = build(walk_file, getup_file, terrain, randomize)
+    rows = []
+    for i in range(n):
+        plant_ss, trial_ss = np.random.SeedSequence([seed, i]).spawn(2)
+        plant.rng = np.random.default_rng(plant_ss)  # model, sensor biases and noise of this trial
+        recorder = None
+        if record is not None and i == 0:
+            from quadson_mjx.sim2sim_record import Recorder
+
+            job = {"policy_name": "knockdown", "terrain": terrain, "label": "trial0", "seed": seed}
+            recorder = Recorder(record, None, plant, SimpleNamespace(ctrl_dt=sup.dt, env_config=env_cfg), job)
+        try:
+            row = run_trial(
+                sup, plant, np.random.default_rng(trial_ss), walk_s, seconds_per_trial, hold_s, recorder
+            )
+        finally:
+            if recorder is not None:
+                recorder.close()
+        rows.append({"trial": i, **row})
+        if progress is not None:
+            progress(i, rows[-1])
+    return summarize(rows), rows
