@@ -18,7 +18,7 @@ import mujoco
 from quadson_mjx.config import Rule, rule_for
 from quadson_mjx.gait import GaitParams
 from quadson_mjx.getup_config import EPISODE_S as GETUP_EPISODE_S
-from quadson_mjx.getup_config import GETUP, GETUP_RULES, check_getup_config
+from quadson_mjx.getup_config import GETUP, GETUP_RULES, TOPPLE_PROB, check_getup_config
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS, get_robot
 from quadson_mjx.terrain_tiles import TILES, tile_spec
 
@@ -347,6 +347,7 @@ def env_config(
     )
     if task == "getup":
         cfg.episode_length_s = GETUP_EPISODE_S
+        cfg.getup.topple_prob = TOPPLE_PROB
     if joystick:
         cfg.reward.weights.update(JOYSTICK_WEIGHTS)
     if gait_recipe:

@@ -49,12 +49,21 @@ GETUP = {
     # share of training episodes that start standing at home instead of dropped (Playground's Go1
     # getup: 40 %): standing still is then a trained state, not only an end; evaluations drop always
     "stand_start_prob": 0.4,
+    # share of those standing starts knocked over at once: the base given a tipping rate about a
+    # random horizontal axis and the matching speed of a pivot on its feet (rate x the standing height),
+    # as a shove leaves it. Standing at home, tipping from 4 rad/s on rolls Quadson onto its back
+    # (MuJoCo C, the home targets held); a policy that acts during the fall can land it on a side.
+    # 0 here (the first get-up runs had none); env_config(task="getup") sets TOPPLE_PROB
+    "topple_prob": 0.0,
+    "topple_rate_rps": (2.0, 8.0),  # the tipping rate, uniform [rad/s]
     **SUCCESS,
     "upright_gate_rad": math.radians(30.0),  # height and pose terms fade in from this tilt to 0
     "height_sigma_m": 0.03,
     "pose_sigma_rad": 0.6,  # of the 12 motors' distance to home (root of the sum of squares)
     "weights": dict(WEIGHTS),
 }
+
+TOPPLE_PROB = 0.5  # getup.topple_prob of the get-up task (env_config(task="getup"))
 
 TASKS = ("locomotion", "getup")
 
@@ -63,6 +72,8 @@ GETUP_RULES: dict[str, Rule] = {
     "task": Rule("name"),
     "getup.drop_height_m": Rule("pair", 0.0, 2.0, _M),
     "getup.stand_start_prob": Rule("number", 0.0, 1.0, "(a probability)"),
+    "getup.topple_prob": Rule("number", 0.0, 1.0, "(a probability)"),
+    "getup.topple_rate_rps": Rule("pair", 0.0, 50.0, "rad/s"),
     "getup.success_tilt_rad": Rule("number", 0.0, math.pi / 2, _RAD, lo_open=True),
     "getup.success_height_m": Rule("number", 0.0, 0.5, _M, lo_open=True),
     "getup.success_hold_s": Rule("number", 0.0, 60.0, _S),

@@ -12,7 +12,9 @@ and wrappers with its own reset, action, reward and success measure:
   tilted; motor angles uniform in the real limits, every check of that module passed; the lowest
   point 0.2-0.5 m above the ground, env.getup.drop_height_m), or, with env.getup.stand_start_prob
   (training: 40 %, as Playground's Go1 getup; evaluations: 0), the home stance on the ground
-  (info["start_class"] STANDING_CLASS), so that holding the stance is trained. The episode starts at the drop: the
+  (info["start_class"] STANDING_CLASS), so that holding the stance is trained; env.getup.topple_prob
+  of those standing starts are knocked over at once (TOPPLED_CLASS: a tipping rate about a random
+  horizontal axis, env.getup.topple_rate_rps), so that catching a fall is trained. The episode starts at the drop: the
   fall and the landing are part of it, as on the robot. On the stone field the robot is dropped at
   a uniform place at least FIELD_MARGIN_M inside the field's edge, above the highest ground within
   SPAWN_RADIUS_M of it. The motors start holding the sampled angles.
@@ -55,6 +57,7 @@ FIELD_MARGIN_M = 1.0  # a drop on the stone field lands at least this far inside
 SPAWN_RADIUS_M = 0.3  # ... above the highest ground within this radius (the robot is 0.34 m long)
 _SPAWN_GRID = 9  # samples per side of the square over which that highest ground is taken
 STANDING_CLASS = len(getup_start.CLASSES)  # info["start_class"] of a start standing at home
+TOPPLED_CLASS = STANDING_CLASS + 1  # ... of a standing start knocked over (env.getup.topple_prob)
 
 
 class GetupEnv(LocomotionEnv):
@@ -104,12 +107,33 @@ class GetupEnv(LocomotionEnv):
         return self.RESTART_INFO
 
     # --- reset -------------------------------------------------------------------------------------
+    def _topple(self, key, standing):
+        """(toppled (), qvel (nv,)): a standing start knocked over with probability topple_prob: the
+        base tips toward a random horizontal direction u at a rate w (env.getup.topple_rate_rps)
+        about z x u, its centre moving at w h u (h the standing height: a pivot on the feet). The
+        standing start's heading is 0, so the body and world frames agree."""
+        g = self._config.getup
+        k_p, k_dir, k_rate = jax.random.split(key, 3)
+        toppled = standing & jax.random.bernoulli(k_p, g.topple_prob)
+        phi = jax.random.uniform(k_dir, (), minval=-jnp.pi, maxval=jnp.pi)
+        rate = jax.random.uniform(k_rate, (), minval=g.topple_rate_rps[0], maxval=g.topple_rate_rps[1])
+        u = jnp.array([jnp.cos(phi), jnp.sin(phi), 0.0])
+        w = jnp.where(toppled, rate, 0.0)
+        qvel = jnp.zeros(self.sys.nv).at[0:3].set(w * self._stand_height * u)
+        return toppled, qvel.at[3:6].set(w * jnp.array([-u[1], u[0], 0.0]))
+
     def reset(self, rng) -> State:
         """A drop: getup_start's start state (on the stone field at a random place, above the
         highest ground near it), the motors holding the sampled angles."""
         k_start, k_xy, k_info, k_stand = jax.random.split(rng, 4)
         start = self._sampler(k_start)
-        standing = jax.random.bernoulli(k_stand, self._config.getup.stand_start_prob)
+        g = self._config.getup
+        standing = jax.random.bernoulli(k_stand, g.stand_start_prob)
+        qvel = jnp.zeros(self.sys.nv)
+        if g.topple_prob > 0:  # static; a key of its own: configs without topples draw as before
+            toppled, qvel = self._topple(jax.random.fold_in(rng, 5), standing)
+        else:
+            toppled = jnp.zeros((), bool)
         qpos = jnp.where(standing, self._home_qpos.at[:2].set(0.0), start.qpos)
         angles = jnp.where(standing, self._home_motor, start.motor_angles)
         if self._field is not None:
@@ -121,7 +145,7 @@ class GetupEnv(LocomotionEnv):
             qpos = qpos.at[:2].set(xy).at[2].add(top)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles.reshape(12))
         data = mjx.make_data(self.sys)
-        data = data.replace(qpos=qpos, qvel=jnp.zeros(self.sys.nv), ctrl=ctrl)
+        data = data.replace(qpos=qpos, qvel=qvel, ctrl=ctrl)
         data = mjx.kinematics(self.sys, data)  # as LocomotionEnv._start: a step recomputes the rest
         info = {
             **self.episode_info(k_info),
@@ -130,7 +154,9 @@ class GetupEnv(LocomotionEnv):
             "last_ctrl": ctrl,
             "stand_s": jnp.zeros(()),  # how long the success condition has held without a break [s]
             "success_s": jnp.full((), -1.0),  # when the successful stand began [s]; -1: not yet
-            "start_class": jnp.where(standing, STANDING_CLASS, start.label),
+            "start_class": jnp.where(
+                toppled, TOPPLED_CLASS, jnp.where(standing, STANDING_CLASS, start.label)
+            ),
             "start_valid": start.valid | standing,
         }
         metrics = {f"reward/{k}": jnp.zeros(()) for k in self._config.getup.weights}

@@ -19,7 +19,7 @@ import numpy as np
 
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env_config import with_added_keys
-from quadson_mjx.getup_env import GetupEnv
+from quadson_mjx.getup_env import TOPPLED_CLASS, GetupEnv
 from quadson_mjx.randomize import randomization_fn
 from quadson_mjx.robots.quadson.getup_start import CLASSES
 from quadson_mjx.wrappers import wrap_for_training
@@ -27,25 +27,38 @@ from quadson_mjx.wrappers import wrap_for_training
 GROUNDS = {"flat": "flat", "stones": "rough"}  # the evaluation's word -> env.terrain
 
 
-def getup_env_config(env_cfg, ground: str):
-    """The run's env config (a get-up run's) on `ground` ("flat" or "stones"), every episode a drop."""
+STARTS = {  # the evaluation's starts -> the overrides that make every episode one
+    "drops": ["getup.stand_start_prob=0.0"],
+    "topples": ["getup.stand_start_prob=1.0", "getup.topple_prob=1.0"],
+}
+
+
+def getup_env_config(env_cfg, ground: str, starts: str = "drops"):
+    """The run's env config (a get-up run's) on `ground` ("flat" or "stones"), every episode a drop
+    (starts "drops") or a knock-over from the home stance (starts "topples", at the run's
+    env.getup.topple_rate_rps, whether or not it trained any)."""
     cfg = with_added_keys(env_cfg)
     if cfg.task != "getup":
         raise ValueError(f"get-up evaluation: the run trained env.task={cfg.task!r}, not getup")
     if ground not in GROUNDS:
         raise ValueError(f"get-up evaluation: ground {ground!r}; choose from {list(GROUNDS)}")
-    return apply_overrides(cfg, [f"terrain={GROUNDS[ground]}", "getup.stand_start_prob=0.0"], prefix="env.")
+    if starts not in STARTS:
+        raise ValueError(f"get-up evaluation: starts {starts!r}; choose from {list(STARTS)}")
+    return apply_overrides(cfg, [f"terrain={GROUNDS[ground]}", *STARTS[starts]], prefix="env.")
 
 
-def evaluate_getup(env_cfg, policy, ground: str = "flat", drops: int = 512, seed: int = 0):
+def evaluate_getup(
+    env_cfg, policy, ground: str = "flat", drops: int = 512, seed: int = 0, starts: str = "drops"
+):
     """policy(obs, key) -> (action, extras) (training.load_policy) of a get-up run whose env config
-    is env_cfg, over `drops` drops on `ground` -> (rows: one per start class of getup_start.CLASSES
+    is env_cfg, over `drops` starts on `ground` -> (rows: one per start class of getup_start.CLASSES
     with drops, successes, success share, time to stand [s] (mean, median, 90th percentile, of the
     successes), share of steps with legs overlapping and with a chain-guarded leg, the largest motor
-    speed [rad/s]; total: the same over every drop, plus non-finite resets)."""
+    speed [rad/s]; total: the same over every start, plus non-finite resets). starts "topples":
+    knock-overs from the home stance instead of drops, one row "toppled"."""
     if drops < 1:
         raise ValueError(f"get-up evaluation: drops {drops}: need at least 1")
-    cfg = getup_env_config(env_cfg, ground)
+    cfg = getup_env_config(env_cfg, ground, starts)
     env = GetupEnv(cfg)
     n_steps = env.episode_length
     rand = None
@@ -100,7 +113,10 @@ def evaluate_getup(env_cfg, policy, ground: str = "flat", drops: int = 512, seed
             "max_motor_speed_rps": float(acc["max_motor_speed"][i].max()) if i.any() else float("nan"),
         }
 
-    rows = [{"start_class": c, **row(label == k)} for k, c in enumerate(CLASSES)]
+    if starts == "topples":
+        rows = [{"start_class": "toppled", **row(label == TOPPLED_CLASS)}]
+    else:
+        rows = [{"start_class": c, **row(label == k)} for k, c in enumerate(CLASSES)]
     total = {
         "ground": ground,
         **row(np.ones(drops, bool)),

@@ -62,7 +62,8 @@ COMMITTED_RUNS = {
     "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
-    "results/getup_h100": ("QuadsonGetupFlat", []),
+    # trained before the toppled starts
+    "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     "results/gaits/pace": ("QuadsonGaitPace", []),

@@ -6,7 +6,9 @@
 Each drop is a fresh start (on the back, a side, the belly, or tilted; motor angles uniform in the
 real limits; 0.2-0.5 m up) on its own randomized model. Success: upright within 10 deg and the base
 within 2 cm of the standing height, held 1 s, begun within 5 s of the drop. Prints one row per
-start class and ground; --json writes them with the command line.
+start class and ground; --topples N adds N knock-overs from the home stance (a tipping rate about
+a random horizontal axis, the run's env.getup.topple_rate_rps) as a row "toppled". --json writes
+them with the command line.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ def parse(argv):
     p.add_argument("--run", required=True, help="training run directory of a get-up task")
     p.add_argument("--ground", nargs="+", default=["flat", "stones"], help="flat and/or stones")
     p.add_argument("--drops", type=int, default=512, help="drops per ground")
+    p.add_argument(
+        "--topples", type=int, default=0, help="also this many knock-overs from the home stance per ground"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
     return p.parse_args(argv)
@@ -50,6 +55,8 @@ def main(argv=None) -> int:
         raise UsageError(f"--ground {' '.join(bad)}: choose from {', '.join(GROUND_NAMES)}")
     if args.drops < 1:
         raise UsageError(f"--drops {args.drops}: need at least 1")
+    if args.topples < 0:
+        raise UsageError(f"--topples {args.topples}: 0 or more")
     if args.json:
         check_writable(args.json, "--json")
     from quadson_mjx.training import load_policy, load_run_config
@@ -77,6 +84,10 @@ def main(argv=None) -> int:
             print(
                 f"non-finite resets {total['non_finite_resets']}, starts without a valid pose {total['starts_without_valid_pose']}"
             )
+        if args.topples:
+            rows, total = evaluate_getup(env_cfg, policy, ground, args.topples, args.seed, "topples")
+            out["grounds"][ground]["topples"] = {"classes": rows, "total": total}
+            print(_line("toppled", total))
     if args.json:
         write_text_atomic(args.json, json.dumps(out, indent=1))
     return 0
