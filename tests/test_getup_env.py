@@ -19,7 +19,7 @@ from quadson_mjx import obs_spec
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.deploy_supervisor import getup_targets
 from quadson_mjx.env_config import env_config
-from quadson_mjx.getup_env import STANDING_CLASS, GetupEnv
+from quadson_mjx.getup_env import STANDING_CLASS, TOPPLED_CLASS, GetupEnv
 from quadson_mjx.robots.quadson import chain_guard, fivebar, getup_start
 from quadson_mjx.robots.quadson import constants as C
 
@@ -95,18 +95,17 @@ def test_starts_are_inside_the_limits_and_clear_of_the_ground_in_mujoco_c(rollou
     d = mujoco.MjData(m)
     qpos = np.asarray(s0.pipeline_state.qpos, np.float64)
     cls = np.asarray(s0.info["start_class"])
-    assert 0 < np.sum(cls == STANDING_CLASS) < N
+    home = np.isin(cls, [STANDING_CLASS, TOPPLED_CLASS])  # the task's toppled starts stand at home too
+    assert 0 < np.sum(cls == STANDING_CLASS) < N and 0 < np.sum(cls == TOPPLED_CLASS) < N
     motor = qpos[:, np.asarray(env._motor_qpos)].reshape(-1, 4, 3)
     assert np.all(np.asarray(fivebar.within_limits(jnp.asarray(motor))))
-    assert np.all(
-        np.asarray(jax.vmap(getup_start.self_clearance)(jnp.asarray(motor[cls != STANDING_CLASS]))) > 0.0
-    )
+    assert np.all(np.asarray(jax.vmap(getup_start.self_clearance)(jnp.asarray(motor[~home]))) > 0.0)
     feet = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in env.robot.foot_geoms()}
-    for q, c in zip(qpos, cls, strict=True):
+    for q, c in zip(qpos, home, strict=True):
         d.qpos[:] = q
         mujoco.mj_forward(m, d)
         geoms = {int(g) for g in d.contact.geom.ravel()[: 2 * d.ncon]} - {0}
-        if c == STANDING_CLASS:
+        if c:
             assert geoms <= feet  # only the feet touch
         else:
             assert d.ncon == 0
@@ -132,6 +131,47 @@ def test_zero_action_success_by_hand(rollout, getup):
     assert back.any()
     assert np.all(success[:, back] == 0.0) and np.all(metrics[-1]["tilt"][back] > np.pi / 2)
     assert all(np.all(mt["nan_reset"] == 0) for mt in metrics)
+
+
+def test_toppled_starts_tip_about_the_feet_and_fast_ones_fall_in_mujoco_c(getup):
+    """A toppled start's velocity by hand: the angular velocity horizontal, of a rate inside
+    topple_rate_rps, the base moving at rate x standing height along u, perpendicular to the axis
+    and toward the tip (z x u = axis). In MuJoCo C (the task's model, the home targets held) the
+    slow tips (below 2.5 rad/s) stay within 20 deg over 1 s and the fast ones (above 6 rad/s) go over
+    90 deg: the start is a knock-over, not a wobble. Starts not toppled have no velocity."""
+    env = getup[0]
+    g = env.config.getup
+    keys = jax.random.split(jax.random.key(5), 64)
+    toppled, qvel = jax.jit(jax.vmap(env._topple))(keys, jnp.ones(64, bool))
+    toppled, qvel = np.asarray(toppled), np.asarray(qvel, np.float64)
+    assert 0 < toppled.sum() < 64  # topple_prob 0.5 of the standing starts
+    assert np.all(qvel[~toppled] == 0.0)
+    v, w = qvel[toppled, 0:3], qvel[toppled, 3:6]
+    rate = np.linalg.norm(w, axis=1)
+    assert np.all(w[:, 2] == 0.0) and np.all(v[:, 2] == 0.0)
+    assert np.all((rate >= g.topple_rate_rps[0]) & (rate <= g.topple_rate_rps[1]))
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), rate * env.stand_height, rtol=1e-5)
+    u = v / np.linalg.norm(v, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.cross([0.0, 0.0, 1.0], u), w / rate[:, None], atol=1e-5)
+    m = env.mj_model
+    d = mujoco.MjData(m)
+    ctrl = np.asarray(env._home_ctrl, np.float64)
+    tilts = []
+    for vel in qvel[toppled]:
+        mujoco.mj_resetData(m, d)
+        d.qpos[:] = np.asarray(env._home_qpos, np.float64)
+        d.qpos[:2] = 0.0
+        d.qvel[:] = vel
+        d.ctrl[:] = ctrl
+        top = 0.0
+        for _ in range(int(round(1.0 / m.opt.timestep))):
+            mujoco.mj_step(m, d)
+            top = max(top, float(np.arccos(np.clip(d.xmat[env.base_body, 8], -1.0, 1.0))))
+        tilts.append(top)
+    rates, tilts = np.linalg.norm(qvel[toppled, 3:6], axis=1), np.degrees(tilts)
+    assert np.sum(rates < 2.5) and np.sum(rates > 6.0)
+    assert np.all(tilts[rates < 2.5] < 20.0), tilts[rates < 2.5]
+    assert np.all(tilts[rates > 6.0] > 90.0), tilts[rates > 6.0]
 
 
 def test_legs_touch_the_ground_in_the_task_model(rollout, getup):

@@ -188,9 +188,9 @@ def _cross_gap(geometry):
     seg_a, seg_b, radii, hip_c, hip_r, hip_h = geometry
     i, j = _PAIRS
     a_i, b_i, a_j, b_j = _rows(seg_a, i), _rows(seg_b, i), _rows(seg_a, j), _rows(seg_b, j)
-    caps = _seg_seg_distance(
-        a_i[:, :, None], b_i[:, :, None], a_j[:, None, :], b_j[:, None, :]
-    ) - (radii[:, None] + radii[None, :])  # (6, 5, 5)
+    caps = _seg_seg_distance(a_i[:, :, None], b_i[:, :, None], a_j[:, None, :], b_j[:, None, :]) - (
+        radii[:, None] + radii[None, :]
+    )  # (6, 5, 5)
     box = jax.vmap(_capsule_box_gap, in_axes=(0, 0, None, 0, 0, None))
     hips = jnp.minimum(
         jnp.min(box(a_j, b_j, radii, _rows(hip_c, i), _rows(hip_r, i), hip_h)),
