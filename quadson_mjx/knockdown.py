@@ -6,14 +6,21 @@ and encoder noise, randomized model as sim2sim's --randomize).
     summary, rows = run_knockdowns("walk.onnx", "getup.onnx", n=50, seed=0, terrain="flat")
 
 One trial: the plant reset on the home stance (random heading, a fresh randomized model and sensor
-biases), the supervisor walks it at FORWARD_COMMAND for walk_s, then one velocity kick of the base
-(`kick`: a random horizontal direction, the base pushed that way at 0.2-0.6 m/s and tipped toward it
-at 25-35 rad/s; while the supervisor still walks REKICK_S later and the robot is upright, another
-kick, MAX_KICKS in all), then the supervisor runs for up to seconds_per_trial from the last kick: fall
-detection, get-up attempts, standing_hold, walking. When walking resumes the trial runs hold_s more.
-Success: walking resumed within seconds_per_trial of the last kick and, for the hold_s after, the
-mode stayed walking and the true tilt (the simulator's base, not the IMU) below UPRIGHT_TILT_RAD.
-Times in a row are from the last kick.
+biases), the supervisor walks it at FORWARD_COMMAND for walk_s, then a knock (`knock`):
+* "kick" (`kick`): one velocity kick of the base, a random horizontal direction, the base pushed that
+  way at 0.2-0.6 m/s and tipped toward it at 25-35 rad/s; while the supervisor still walks REKICK_S
+  later and the robot is upright, another kick, MAX_KICKS in all. Violent: most roll the robot over;
+* "shove" (`Shove`): a horizontal force at the top of the base held SHOVE_S, in one random direction
+  per trial, 15 N first; while the supervisor still walks RESHOVE_S later and the robot is upright,
+  the next force of SHOVE_FORCES_N (up to 96 N): the smallest of them that fells the robot;
+* "none": no knock; the supervisor walks for walk_s + seconds_per_trial (times from the start), and
+  success is walking throughout with no fall detected and the true tilt below UPRIGHT_TILT_RAD: the
+  fall detector's false alarms (with `pushes`, under the walking run's random pushes).
+Then the supervisor runs for up to seconds_per_trial from the last knock: fall detection, get-up
+attempts, standing_hold, walking. When walking resumes the trial runs hold_s more. Success: walking
+resumed within seconds_per_trial of the last knock and, for the hold_s after, the mode stayed
+walking and the true tilt (the simulator's base, not the IMU) below UPRIGHT_TILT_RAD. Times in a row
+are from the last knock (its list "kicks" holds every knock).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ from __future__ import annotations
 import math
 from types import SimpleNamespace
 
+import mujoco
 import numpy as np
 
 from quadson_mjx import deploy
@@ -34,6 +42,11 @@ FORWARD_COMMAND = (0.25, 0.0, 0.0)  # vx [m/s], vy [m/s], yaw rate [rad/s] while
 KICK_SPEED_MPS = (0.2, 0.6)  # horizontal base speed added by the kick, uniform [m/s]
 KICK_RATE_RPS = (25.0, 35.0)  # angular rate added about the horizontal axis across it, uniform [rad/s]
 MAX_KICKS, REKICK_S = 3, 1.0  # while the supervisor still walks, kick again this long after [s]
+# A shove: a horizontal force at the top of the base, in one random direction per trial, held
+# SHOVE_S; while the supervisor still walks RESHOVE_S later and the robot is upright, a harder one.
+SHOVE_FORCES_N = (15.0, 20.0, 26.0, 34.0, 44.0, 57.0, 74.0, 96.0)
+SHOVE_S, RESHOVE_S = 0.16, 1.5  # 8 control ticks of 20 ms
+KNOCKS = ("kick", "shove", "none")
 UPRIGHT_TILT_RAD = math.radians(30.0)  # the success's bound on the true tilt
 LATENCY_S = 0.02  # servo latency of the plant [s], sim2sim's default
 
@@ -66,34 +79,115 @@ def kick(plant, rng) -> dict:
     return {"dir_deg": math.degrees(phi), "speed_mps": speed, "rate_rps": rate}
 
 
-def build(walk_file, getup_file, terrain: str = "flat", randomize: bool = True, sensors: bool = True):
+class NoKnock:
+    """No knock: the supervisor walks the whole trial; a fall detected then is a false alarm (or a
+    true fall the walking policy caused), which is what the trial measures."""
+
+    name, max_knocks, every_s = "none", 0, math.inf
+
+    def __init__(self, plant, rng):
+        pass
+
+    def tick(self) -> None:
+        pass
+
+
+class Kick:
+    """Velocity kicks (`kick`), a fresh direction and size each, MAX_KICKS at most."""
+
+    name, max_knocks, every_s = "kick", MAX_KICKS, REKICK_S
+
+    def __init__(self, plant, rng):
+        self.plant, self.rng = plant, rng
+
+    def start(self, n: int, dt: float) -> dict:
+        return kick(self.plant, self.rng)
+
+    def tick(self) -> None:
+        pass
+
+
+class Shove:
+    """Shoves of rising force (SHOVE_FORCES_N) in one direction drawn per trial (uniform in the body
+    frame at the first shove), each a horizontal world-frame force held SHOVE_S at the centre of the
+    base box's top face, as a hand pushes the robot's back; the torque about the centre of mass
+    follows from that point. MuJoCo's xfrc_applied, cleared when the shove ends."""
+
+    name, max_knocks, every_s = "shove", len(SHOVE_FORCES_N), RESHOVE_S
+
+    def __init__(self, plant, rng):
+        self.plant, self.rng = plant, rng
+        m = plant.m
+        g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
+        self.top = m.geom_pos[g] + np.array([0.0, 0.0, m.geom_size[g][2]])  # in the base's frame
+        self.phi, self.force, self.ticks = float(rng.uniform(-math.pi, math.pi)), np.zeros(3), 0
+
+    def start(self, n: int, dt: float) -> dict:
+        u = np.array([math.cos(self.phi), math.sin(self.phi), 0.0])
+        world = quat_rotate(self.plant.d.qpos[3:7], u) if n == 0 else self.direction
+        world[2] = 0.0
+        self.direction = world / max(float(np.linalg.norm(world)), 1e-9)
+        self.force = SHOVE_FORCES_N[n] * self.direction
+        self.ticks = int(round(SHOVE_S / dt))
+        return {"dir_deg": math.degrees(self.phi), "force_n": SHOVE_FORCES_N[n], "duration_s": SHOVE_S}
+
+    def tick(self) -> None:
+        """Before each control period: the force for its physics steps, or none once SHOVE_S passed."""
+        d, b = self.plant.d, self.plant.root
+        if self.ticks <= 0:
+            d.xfrc_applied[b] = 0.0
+            return
+        point = d.xpos[b] + d.xmat[b].reshape(3, 3) @ self.top
+        d.xfrc_applied[b, :3] = self.force
+        d.xfrc_applied[b, 3:] = np.cross(point - d.xipos[b], self.force)
+        self.ticks -= 1
+
+
+def build(
+    walk_file,
+    getup_file,
+    terrain: str = "flat",
+    randomize: bool = True,
+    sensors: bool = True,
+    pushes: bool = False,
+    supervisor=None,
+):
     """Loads the two policies -> (Supervisor over a DeployLoop of walk_file, Plant of sim2sim on
-    `terrain` with the walking policy's randomization ranges, the walking policy's env config)."""
+    `terrain` with the walking policy's randomization ranges (and its pushes, when asked), the
+    walking policy's env config). supervisor: a SupervisorConfig (default its defaults)."""
     if terrain not in P.TERRAINS:
         raise ValueError(f"unknown terrain {terrain!r}: {', '.join(P.TERRAINS)}")
     walk = deploy.load_policy(walk_file)
-    sup = Supervisor(_Tap(deploy.DeployLoop(walk)), deploy.load_policy(getup_file))
+    sup = Supervisor(_Tap(deploy.DeployLoop(walk)), deploy.load_policy(getup_file), supervisor)
     env_cfg = walk.meta["env_config"]
     robot = get_robot(env_cfg.get("robot", "quadson"))
     plant = S.make_plant(
-        robot, env_cfg, terrain, LATENCY_S, 0, randomize, False, sensors=P.SensorParams(enabled=sensors)
+        robot, env_cfg, terrain, LATENCY_S, 0, randomize, pushes, sensors=P.SensorParams(enabled=sensors)
     )
     return sup, plant, env_cfg
 
 
-def run_trial(sup, plant, rng, walk_s=2.0, seconds_per_trial=10.0, hold_s=2.0, recorder=None) -> dict:
+def run_trial(
+    sup, plant, rng, walk_s=2.0, seconds_per_trial=10.0, hold_s=2.0, recorder=None, knock="kick"
+) -> dict:
     """One knock-down (the module's docstring) with the plant's rng already seeded; rng draws the heading
-    and the kick. -> the trial's row: times [s] from the kick, tilts [deg], counts."""
+    and the knocks (knock: "kick" or "shove"). -> the trial's row: times [s] from the last knock, tilts
+    [deg], counts."""
+    if knock not in KNOCKS:
+        raise ValueError(f"knock {knock!r}: choose from {', '.join(KNOCKS)}")
     dt = sup.dt
     r = sup.walking.config.robot
     lo, hi = r.motor_limits[:, 0], r.motor_limits[:, 1]
     plant.reset((0.0, 0.0), float(rng.uniform(-math.pi, math.pi)))
+    knocker = {"kick": Kick, "shove": Shove, "none": NoKnock}[knock](plant, rng)
     rd = plant.read()
     sup.reset(rd.motor_pos)
     sup.walking.reset_heading(rd.imu_quat_wxyz)
     needs_vel = sup.walking.needs_lin_vel
     k_kick = k_next = int(round(walk_s / dt))
     k_end = k_kick + int(round(seconds_per_trial / dt))
+    if knock == "none":  # walking throughout; times and the largest tilt from the start
+        k_kick, k_next = 0, -1
     kicks = []
     row = {"detected": False, "fell_before_kick": False, "t_detect_s": None, "t_standing_hold_s": None}
     row |= {"t_walking_s": None, "attempts": 0, "timeouts": 0, "tilt_at_getup_deg": None}
@@ -103,9 +197,10 @@ def run_trial(sup, plant, rng, walk_s=2.0, seconds_per_trial=10.0, hold_s=2.0, r
         if k == k_next and not row["detected"] and tilt(plant.d.qpos[3:7]) >= UPRIGHT_TILT_RAD:
             k_next += 1  # walking on, but not upright: wait for it
         elif k == k_next and not row["detected"]:  # the first kick, or another: the last did not fell it
-            kicks.append(kick(plant, rng))
+            kicks.append(knocker.start(len(kicks), dt))
             k_kick, k_end = k, k + int(round(seconds_per_trial / dt))
-            k_next = k + int(round(REKICK_S / dt)) if len(kicks) < MAX_KICKS else -1
+            k_next = k + int(round(knocker.every_s / dt)) if len(kicks) < knocker.max_knocks else -1
+        knocker.tick()
         rd = plant.read()
         vel = plant.truth()["lin_vel"] if needs_vel else None
         out = sup.step(rd.imu_quat_wxyz, rd.gyro, rd.motor_pos, command=FORWARD_COMMAND, base_lin_vel=vel)
@@ -139,7 +234,10 @@ def run_trial(sup, plant, rng, walk_s=2.0, seconds_per_trial=10.0, hold_s=2.0, r
         prev, k = out.mode, k + 1
     return row | {
         "kicks": kicks,  # the last one felled the robot, if one did
-        "success": bool(row["t_walking_s"] is not None and held),
+        # "none": walked throughout, no fall detected, the true tilt below UPRIGHT_TILT_RAD
+        "success": bool(row["t_walking_s"] is not None and held)
+        if knock != "none"
+        else bool(not row["detected"] and max_tilt < UPRIGHT_TILT_RAD),
         "max_tilt_deg": math.degrees(max_tilt),
         "final_tilt_deg": math.degrees(true_tilt),
         "final_mode": str(out.mode),
@@ -167,20 +265,33 @@ def _record(recorder, k, plant, readings, out, sup, switched: bool) -> None:
         recorder.writer.log(recorder.t_ns, "info", f"supervisor: {out.mode} (tilt {out.tilt_rad:.2f} rad)")
 
 
-def settings(seconds_per_trial: float = 10.0, walk_s: float = 2.0, hold_s: float = 2.0) -> dict:
+def settings(
+    seconds_per_trial: float = 10.0,
+    walk_s: float = 2.0,
+    hold_s: float = 2.0,
+    knock: str = "kick",
+    pushes: bool = False,
+) -> dict:
     """The trial's constants, for a results file."""
+    if knock == "kick":
+        knocks = {"kick_speed_mps": list(KICK_SPEED_MPS), "kick_rate_rps": list(KICK_RATE_RPS)}
+        knocks |= {"max_kicks": MAX_KICKS, "rekick_s": REKICK_S}
+    elif knock == "none":
+        knocks = {}
+    else:
+        knocks = {"shove_forces_n": list(SHOVE_FORCES_N), "shove_s": SHOVE_S, "reshove_s": RESHOVE_S}
+        knocks |= {"shove_point": "the centre of the base box's top face"}
     return {
         "command": list(FORWARD_COMMAND),
-        "kick_speed_mps": list(KICK_SPEED_MPS),
-        "kick_rate_rps": list(KICK_RATE_RPS),
-        "max_kicks": MAX_KICKS,
-        "rekick_s": REKICK_S,
+        "knock": knock,
+        **knocks,
         "walk_s": walk_s,
         "seconds_per_trial": seconds_per_trial,
         "hold_s": hold_s,
         "upright_tilt_deg": math.degrees(UPRIGHT_TILT_RAD),
         "latency_s": LATENCY_S,
         "randomized_model": True,
+        "pushes": pushes,
         "sensor_noise": True,
     }
 
@@ -226,26 +337,39 @@ def run_knockdowns(
     hold_s: float = 2.0,
     randomize: bool = True,
     progress=None,
+    knock: str = "kick",
+    first: int = 0,
+    video=None,
+    pushes: bool = False,
+    supervisor=None,
 ) -> tuple[dict, list[dict]]:
-    """n knock-downs (the module's docstring), trial i seeded by (seed, i) alone. record: None or an
-    .mcap path for trial 0 (sim2sim_record's Recorder). progress(i, row) after each. -> (summary, rows)."""
-    if n < 1:
-        raise ValueError(f"n {n}: need at least 1 trial")
-    sup, plant, env_cfg = build(walk_file, getup_file, terrain, randomize)
+    """n knock-downs (the module's docstring): trials first .. first + n - 1, trial i seeded by
+    (seed, i) alone, so one trial of a run can be replayed by itself. record / video: None or an .mcap
+    / .mp4 or .gif path for the first of them (sim2sim_record's Recorder). progress(i, row) after each.
+    -> (summary, rows)."""
+    if n < 1 or first < 0:
+        raise ValueError(f"n {n}, first {first}: need at least 1 trial, from trial 0 on")
+    if knock not in KNOCKS:
+        raise ValueError(f"knock {knock!r}: choose from {', '.join(KNOCKS)}")
+    sup, plant, env_cfg = build(
+        walk_file, getup_file, terrain, randomize, pushes=pushes, supervisor=supervisor
+    )
     rows = []
-    for i in range(n):
+    for i in range(first, first + n):
         plant_ss, trial_ss = np.random.SeedSequence([seed, i]).spawn(2)
         plant.rng = np.random.default_rng(plant_ss)  # model, sensor biases and noise of this trial
         recorder = None
-        if record is not None and i == 0:
+        if (record is not None or video is not None) and i == first:
             from quadson_mjx.sim2sim_record import Recorder
 
-            job = {"policy_name": "knockdown", "terrain": terrain, "label": "trial0", "seed": seed}
-            recorder = Recorder(record, None, plant, SimpleNamespace(ctrl_dt=sup.dt, env_config=env_cfg), job)
+            job = {"policy_name": "knockdown", "terrain": terrain, "label": f"trial{i}", "seed": seed}
+            adapter = SimpleNamespace(ctrl_dt=sup.dt, env_config=env_cfg)
+            recorder = Recorder(record, video, plant, adapter, job)
         try:
             row = run_trial(
-                sup, plant, np.random.default_rng(trial_ss), walk_s, seconds_per_trial, hold_s, recorder
-            )
+                sup, plant, np.random.default_rng(trial_ss), walk_s, seconds_per_trial, hold_s, recorder,
+                knock,
+            )  # fmt: skip
         finally:
             if recorder is not None:
                 recorder.close()

@@ -6,15 +6,20 @@ plant, over many randomized knock-downs (quadson_mjx.knockdown).
 (`python eval/knockdown.py ...` runs the same command.)
 
 --walk and --getup take a training run directory (its newest checkpoint is exported to a temporary
-folder) or an exported file (*.onnx, *.npz). Each trial: walk 2 s at 0.25 m/s, a random velocity kick
-of the base (another 1 s later while the robot still walks, 3 at most), then up to --seconds for the
-supervisor to get the robot up and walking, and 2 s of walking that must stay upright (true tilt
-below 30 deg). Prints one line per trial and a summary; --json writes them with the command line,
---mcap records the first trial for Foxglove. Bad input: one line, exit status 2.
+folder) or an exported file (*.onnx, *.npz). Each trial: walk 2 s at 0.25 m/s, a knock (--knock kick:
+a random velocity kick of the base, another 1 s later while the robot still walks, 3 at most; --knock
+shove: a push on the top of the base, 15 N for 0.16 s, then harder ones 1.5 s apart up to 96 N until
+it falls; --knock none: no knock, walking throughout, to count false alarms, with --pushes under
+the walking run's random pushes), then up to --seconds for the supervisor to get the robot up and walking, and 2 s of
+walking that must stay upright (true tilt below 30 deg). Trial i is seeded by (seed, i): --first i
+--trials 1 replays one. Prints one line per trial and a summary; --json writes them with the command
+line, --mcap records the first trial for Foxglove and --video renders it. Bad input: one line, exit
+status 2.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shlex
 import sys
@@ -33,6 +38,7 @@ from quadson_mjx.errors import (
 )
 
 TERRAINS = ("flat", "stones")
+KNOCKS = ("kick", "shove", "none")  # quadson_mjx.knockdown.KNOCKS, without importing mujoco for --help
 
 
 def parse(argv):
@@ -49,9 +55,30 @@ def parse(argv):
     p.add_argument("--seconds", type=float, default=10.0, help="from the kick, to be walking again [s]")
     p.add_argument("--json", default=None, help="write the summary and the trials here")
     p.add_argument("--mcap", default=None, help="record the first trial here (.mcap)")
+    p.add_argument("--video", default=None, help="render the first trial here (.mp4 or .gif)")
+    p.add_argument(
+        "--knock", default="kick", help="kick (velocity kicks), shove (rising pushes) or none (false alarms)"
+    )
+    p.add_argument(
+        "--pushes", action="store_true", help="the walking run's random pushes on the plant as well"
+    )
+    p.add_argument(
+        "--supervisor",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a SupervisorConfig field other than its default, SI (rad, s); repeatable",
+    )
+    p.add_argument(
+        "--first", type=int, default=0, help="the first trial's index (trial i is seeded by (seed, i))"
+    )
     a = p.parse_args(argv)
     if a.trials < 1:
         raise UsageError(f"--trials {a.trials}: need at least 1")
+    if a.first < 0:
+        raise UsageError(f"--first {a.first}: a trial index is 0 or more")
+    if a.knock not in KNOCKS:
+        raise UsageError(f"--knock {a.knock}: choose from {', '.join(KNOCKS)}")
     if a.terrain not in TERRAINS:
         raise UsageError(f"--terrain {a.terrain}: choose from {', '.join(TERRAINS)}")
     check_number("--seconds", a.seconds, 0.5, 600.0)
@@ -66,11 +93,36 @@ def parse(argv):
                 raise UsageError(
                     f"--{flag} {path}: a policy file is *.onnx or *.npz, or give a run directory"
                 )
+    a.supervisor_config = supervisor_config(a.supervisor)
     if a.json:
         check_writable(a.json, "--json")
     if a.mcap:
         check_writable(a.mcap, "--mcap")
+    if a.video:
+        check_writable(a.video, "--video")
+        if Path(a.video).suffix.lower() not in (".mp4", ".gif"):
+            raise UsageError(f"--video {a.video}: a video is *.mp4 or *.gif")
     return a
+
+
+def supervisor_config(items):
+    """["fall_tilt_rad=0.87", ...] -> a SupervisorConfig with those fields, or UsageError."""
+    from quadson_mjx.deploy_supervisor import SupervisorConfig
+
+    names = [f.name for f in dataclasses.fields(SupervisorConfig)]
+    changes = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in names:
+            raise UsageError(f"--supervisor {item}: KEY=VALUE with KEY one of {', '.join(names)}")
+        try:
+            changes[key] = float(value)
+        except ValueError:
+            raise UsageError(f"--supervisor {item}: {value!r} is not a number") from None
+    try:
+        return SupervisorConfig(**changes)
+    except ValueError as e:
+        raise UsageError(f"--supervisor: {e}") from None
 
 
 def policy_file(path, flag: str, want_getup: bool, folder: Path) -> Path:
@@ -94,10 +146,19 @@ def policy_file(path, flag: str, want_getup: bool, folder: Path) -> Path:
 
 def _line(r: dict) -> str:
     f = lambda v: "   -  " if v is None else f"{v:6.2f}"  # noqa: E731
+    if not r["kicks"]:  # --knock none
+        return (
+            f"{r['trial']:3d} no knock | detected {'yes' if r['detected'] else ' no'} {f(r['t_detect_s'])}"
+            f" | largest tilt {r['max_tilt_deg']:5.1f} deg | {'OK' if r['success'] else 'failed'}"
+        )
     k = r["kicks"][-1]
+    size = (
+        f"{k['force_n']:5.1f} N {k['duration_s']:.2f} s"
+        if "force_n" in k
+        else f"{k['speed_mps']:.2f} m/s {k['rate_rps']:4.1f} rad/s"
+    )
     return (
-        f"{r['trial']:3d} kicks {len(r['kicks'])}, last {k['dir_deg']:5.0f} deg {k['speed_mps']:.2f} m/s"
-        f" {k['rate_rps']:4.1f} rad/s"
+        f"{r['trial']:3d} knocks {len(r['kicks'])}, last {k['dir_deg']:5.0f} deg {size}"
         f" | detected {'yes' if r['detected'] else ' no'} {f(r['t_detect_s'])} | hold {f(r['t_standing_hold_s'])}"
         f" | walking {f(r['t_walking_s'])} | attempts {r['attempts']} | tilt at get-up"
         f" {f(r['tilt_at_getup_deg'])} final {r['final_tilt_deg']:5.1f} deg | {'OK' if r['success'] else 'failed'}"
@@ -115,20 +176,24 @@ def main(argv=None) -> int:
         walk = policy_file(a.walk, "walk", False, Path(tmp))
         getup = policy_file(a.getup, "getup", True, Path(tmp))
         try:
-            knockdown.build(walk, getup, a.terrain)
+            knockdown.build(walk, getup, a.terrain, supervisor=a.supervisor_config)
         except (ValueError, KeyError) as e:
             raise UsageError(f"--walk {a.walk} / --getup {a.getup}: the supervisor refuses them: {e}") from e
-        print(f"{a.trials} knock-downs on {a.terrain}, seed {a.seed}; times [s] from the kick", flush=True)
+        print(
+            f"{a.trials} knock-downs ({a.knock}) on {a.terrain}, seed {a.seed}; times [s] from the last"
+            " knock", flush=True,
+        )  # fmt: skip
         summary, rows = knockdown.run_knockdowns(
             walk, getup, a.trials, a.seed, a.terrain, a.seconds, record=a.mcap,
-            progress=lambda i, r: print(_line(r), flush=True),
+            progress=lambda i, r: print(_line(r), flush=True), knock=a.knock, first=a.first,
+            video=a.video, pushes=a.pushes, supervisor=a.supervisor_config,
         )  # fmt: skip
     wall = time.perf_counter() - t0
     s = summary
     lo, hi = s["success_rate_95"]
     print(
         f"success {s['successes']}/{s['trials']} ({100 * s['success_rate']:.1f} %, 95 % interval"
-        f" {100 * lo:.1f}-{100 * hi:.1f} %); falls detected {s['detected']}/{s['trials']} after {s['kicks']} kicks; walking again"
+        f" {100 * lo:.1f}-{100 * hi:.1f} %); falls detected {s['detected']}/{s['trials']} after {s['kicks']} knocks; walking again"
         f" {s['walking_resumed']}; median time to standing_hold {s['median_t_standing_hold_s']} s, to walking"
         f" {s['median_t_walking_s']} s; on the back when the get-up started {s['on_back_at_getup']}"
         f" ({s['successes_on_back']} stood); trials with a timeout {s['trials_with_timeout']}; targets"
@@ -136,7 +201,8 @@ def main(argv=None) -> int:
     )
     if a.json:
         out = {"command": "python eval/knockdown.py " + shlex.join(argv), "summary": s, "wall_s": wall}
-        out |= {"settings": knockdown.settings(a.seconds), "trials": rows}
+        out |= {"settings": knockdown.settings(a.seconds, knock=a.knock, pushes=a.pushes), "trials": rows}
+        out["settings"]["supervisor"] = dataclasses.asdict(a.supervisor_config)
         write_text_atomic(a.json, json.dumps(out, indent=1))
     return 0
 
