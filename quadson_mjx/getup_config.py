@@ -51,8 +51,9 @@ GETUP = {
     "stand_start_prob": 0.4,
     # share of those standing starts knocked over at once: the base given a tipping rate about a
     # random horizontal axis and the matching speed of a pivot on its feet (rate x the standing height),
-    # as a shove leaves it. Standing at home, tipping from 4 rad/s on rolls Quadson onto its back
-    # (MuJoCo C, the home targets held); a policy that acts during the fall can land it on a side.
+    # as a shove leaves it. Standing at home with the home targets held, Quadson tipped faster than
+    # 6 rad/s goes over 90 deg, slower than 2.5 rad/s stays within 20 deg (MuJoCo C,
+    # tests/test_getup_env.py); a policy that acts during the fall can catch it or land on a side.
     # 0 here (the first get-up runs had none); env_config(task="getup") sets TOPPLE_PROB
     "topple_prob": 0.0,
     "topple_rate_rps": (2.0, 8.0),  # the tipping rate, uniform [rad/s]

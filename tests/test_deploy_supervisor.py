@@ -72,7 +72,16 @@ def _quat(roll, pitch=0.0, yaw=0.0):
     )
 
 
+def _config(**changes):
+    """The thresholds the hand-made streams below were written for (the defaults before the get-up
+    policy learned to catch a fall): 50 deg over 5 ticks, 15 ticks of settling, 0.25 s blends."""
+    slow = {"fall_tilt_rad": math.radians(50.0), "fall_confirm_s": 0.1, "settle_s": 0.3}
+    slow |= {"hold_exit_tilt_rad": math.radians(25.0), "blend_s": 0.25}
+    return SupervisorConfig(**(slow | changes))
+
+
 def _sup(config=None, getup=None):
+    config = config if config is not None else _config()
     return Supervisor(deploy.DeployLoop(_Walk()), getup if getup is not None else _Getup(), config)
 
 
@@ -113,7 +122,7 @@ def test_upright_stream_never_switches_and_sends_the_walking_loops_targets():
 
 
 def test_a_fall_switches_exactly_when_expected():
-    cfg = SupervisorConfig()  # 50 deg, confirmed over 5 ticks; settle 15 ticks
+    cfg = _config()  # 50 deg, confirmed over 5 ticks; settle 15 ticks
     getup = _Getup()
     sup = _sup(cfg, getup)
     rolls = [D(2.0 * k + 1.0) for k in range(60)]  # 1, 3, ... deg: first above 50 deg at k = 25
@@ -130,18 +139,18 @@ def test_hysteresis_no_chatter_around_either_threshold():
     sup = _sup()
     assert {o.mode for o in _run(sup, [D(45), D(55)] * 50)} == {Mode.WALKING}
     # without confirmation the first tick above falls, and 49 deg after it does not walk again
-    sup = _sup(SupervisorConfig(fall_confirm_s=0.0, settle_s=0.0))
+    sup = _sup(_config(fall_confirm_s=0.0, settle_s=0.0))
     modes = [o.mode for o in _run(sup, [D(51), D(49)] * 50)]
     assert modes[0] == Mode.GETTING_UP and set(modes) == {Mode.GETTING_UP}
     # around the upright threshold (12 deg) while standing up: stays in standing_hold (exit at
     # 25 deg), and the dwell restarts at every tick above 12 deg, so it never walks
-    sup = _sup(SupervisorConfig(fall_confirm_s=0.0, settle_s=0.0, getup_timeout_s=100.0))
+    sup = _sup(_config(fall_confirm_s=0.0, settle_s=0.0, getup_timeout_s=100.0))
     modes = [o.mode for o in _run(sup, [D(90)] + [D(11), D(13)] * 100)]
     assert modes[0] == Mode.GETTING_UP and set(modes[1:]) == {Mode.STANDING_HOLD}
 
 
 def test_timeout_eases_to_rest_then_retries():
-    cfg = SupervisorConfig(
+    cfg = _config(
         fall_confirm_s=0.0, settle_s=0.0, stand_dwell_s=0.5, getup_timeout_s=1.0, rest_s=0.6, rest_ease_s=0.4
     )
     getup = _Getup(np.full(12, 0.5))
@@ -163,7 +172,7 @@ def test_timeout_eases_to_rest_then_retries():
 
 
 def test_back_to_walking_after_the_dwell():
-    cfg = SupervisorConfig(fall_confirm_s=0.0, settle_s=0.0, stand_dwell_s=0.5)
+    cfg = _config(fall_confirm_s=0.0, settle_s=0.0, stand_dwell_s=0.5)
     sup = _sup(cfg)
     # fallen for 10 ticks, then upright (5 deg): standing_hold for 25 ticks, then walking
     outs = _run(sup, [D(100)] * 10 + [D(5)] * 40)
@@ -184,7 +193,7 @@ def test_back_to_walking_after_the_dwell():
 
 def test_every_switch_blends_and_no_tick_jumps():
     blend_s = 0.2  # 10 ticks: the first blended tick moves smoothstep(0.1) = 0.028 of the way
-    cfg = SupervisorConfig(fall_confirm_s=0.0, settle_s=0.1, stand_dwell_s=0.2, blend_s=blend_s)
+    cfg = _config(fall_confirm_s=0.0, settle_s=0.1, stand_dwell_s=0.2, blend_s=blend_s)
     getup = _Getup(np.ones(12))  # every motor to its upper limit: far from the walking targets
     sup = _sup(cfg, getup)
     outs = _run(sup, [0.0] * 20 + [D(170)] * 30 + [D(3)] * 40)
@@ -208,7 +217,7 @@ def test_every_switch_blends_and_no_tick_jumps():
 
 
 def test_nan_imu_takes_the_safety_path_and_freezes_the_modes():
-    cfg = SupervisorConfig(fall_confirm_s=0.0, settle_s=0.0)
+    cfg = _config(fall_confirm_s=0.0, settle_s=0.0)
     sup = _sup(cfg)
     nan_q = np.array([np.nan, 0.0, 0.0, 0.0])
     last = _run(sup, [0.0] * 5)[-1]
@@ -241,7 +250,7 @@ def test_nan_imu_takes_the_safety_path_and_freezes_the_modes():
 
 def test_getup_observation_and_targets_from_hand_values():
     getup = _Getup(np.linspace(-1.0, 1.0, 12))
-    sup = _sup(SupervisorConfig(fall_confirm_s=0.0, settle_s=0.0), getup)
+    sup = _sup(_config(fall_confirm_s=0.0, settle_s=0.0), getup)
     motor = HOME + 0.01
     gyro = np.array([0.1, -0.2, 0.3])
     sup.step(_quat(D(90)), gyro, motor)
@@ -309,7 +318,7 @@ def test_an_exported_getup_file_loads_and_drives(tmp_path):
     arrays = export_arrays((None, {"params": params}), 30, 12, False, meta)
     np.savez(tmp_path / "getup.npz", **arrays)
     policy = load_policy(tmp_path / "getup.npz")
-    sup = _sup(SupervisorConfig(fall_confirm_s=0.0, settle_s=0.0, blend_s=0.02), policy)
+    sup = _sup(_config(fall_confirm_s=0.0, settle_s=0.0, blend_s=0.02), policy)
     out = sup.step(_quat(D(180)), np.zeros(3), HOME)  # on its back: getting_up at once, no blend
     # the observation on its back, by hand: gravity (0, 0, 1) in the body, gyro 0, home, no action yet
     obs = np.concatenate([[0.0, 0.0, 1.0], np.zeros(3), HOME, np.zeros(12)]).astype(np.float32)
