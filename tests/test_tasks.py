@@ -64,6 +64,7 @@ COMMITTED_RUNS = {
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
+    "results/getup_topple_h100": ("QuadsonGetupFlat", []),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     "results/gaits/pace": ("QuadsonGaitPace", []),
