@@ -179,10 +179,9 @@ def main(argv=None) -> int:
             knockdown.build(walk, getup, a.terrain, supervisor=a.supervisor_config)
         except (ValueError, KeyError) as e:
             raise UsageError(f"--walk {a.walk} / --getup {a.getup}: the supervisor refuses them: {e}") from e
-        print(
-            f"{a.trials} knock-downs ({a.knock}) on {a.terrain}, seed {a.seed}; times [s] from the last"
-            " knock", flush=True,
-        )  # fmt: skip
+        origin = "the start" if a.knock == "none" else "the last knock"
+        trials = f"{a.trials} trials from trial {a.first}" if a.first else f"{a.trials} trials"
+        print(f"{trials} ({a.knock}) on {a.terrain}, seed {a.seed}; times [s] from {origin}", flush=True)
         summary, rows = knockdown.run_knockdowns(
             walk, getup, a.trials, a.seed, a.terrain, a.seconds, record=a.mcap,
             progress=lambda i, r: print(_line(r), flush=True), knock=a.knock, first=a.first,
