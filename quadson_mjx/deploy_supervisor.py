@@ -55,7 +55,7 @@ from quadson_mjx import obs_spec
 from quadson_mjx.deploy_observation import ObservationBuilder
 from quadson_mjx.deploy_safety import Fault, SafetyLayer, as_vector, check_sensors
 from quadson_mjx.quat import quat_rotate_inverse
-from quadson_mjx.robots.quadson import chain_guard
+from quadson_mjx.robots.quadson import chain_guard, mirror
 
 __all__ = [
     "GetupPolicy",
@@ -156,9 +156,17 @@ def getup_targets(action, home_motor) -> np.ndarray:
 class GetupPolicy:
     """A loaded get-up policy and its observation: policy(obs (30,)) -> action (12,) (an exported
     file from deploy_policy.load_policy, or any callable with obs_size, action_size and, optionally,
-    meta). robot: the walking loop's RobotKinematics (motor names, limits, clamp)."""
+    meta). robot: the walking loop's RobotKinematics (motor names, limits, clamp).
 
-    def __init__(self, policy, robot, ctrl_dt: float):
+    mirror_to "left" (or "right"): an attempt whose first tick has the body's right (left) side
+    lower, gravity's body y below (above) 0, runs the policy on the robot's mirror image
+    (robots.quadson.mirror: observation mirrored in, action mirrored out), so that it always meets
+    the fall of the side it gets up from better; None: never."""
+
+    def __init__(self, policy, robot, ctrl_dt: float, mirror_to: str | None = None):
+        if mirror_to not in (None, "left", "right"):
+            raise ValueError(f"get-up policy: mirror_to {mirror_to!r}; choose from None, 'left', 'right'")
+        self.mirror_to, self.mirrored = mirror_to, False
         self.policy, self.robot, self.ctrl_dt = policy, robot, float(ctrl_dt)
         self.obs_spec = obs_spec.getup_observation(robot.motor_names)
         self.action_spec = obs_spec.getup_action(robot.motor_names)
@@ -178,17 +186,26 @@ class GetupPolicy:
         self.observer = ObservationBuilder(self.obs_spec, robot, self.action_spec.size)
 
     def reset(self) -> None:
-        """A new attempt: last action 0."""
+        """A new attempt: last action 0; mirrored or not is decided on its first tick."""
         self.observer.reset()
+        self._decided = False
 
     def act(self, quat, gyro, motor_pos, resync: bool = False):
         """Checked readings -> (motor targets (12,) [rad] clamped, action (12,), obs (30,)), or None
-        when the policy's output is not 12 finite numbers."""
+        when the policy's output is not 12 finite numbers. action and obs are the robot's (not
+        mirrored)."""
         obs = self.observer.observe(quat, gyro, motor_pos, np.zeros(3), None, 0.0, self.ctrl_dt, resync)
-        action = np.asarray(self.policy(obs), np.float32).reshape(-1)
+        if not self._decided:
+            g_y = float(obs[1])  # gravity.y, obs_spec.getup_observation
+            self.mirrored = {None: False, "left": g_y < 0.0, "right": g_y > 0.0}[self.mirror_to]
+            self._decided = True
+        seen = mirror.mirror_getup_observation(obs) if self.mirrored else obs
+        action = np.asarray(self.policy(seen), np.float32).reshape(-1)
         if action.shape != (self.action_spec.size,) or not np.all(np.isfinite(action)):
             return None
         action = np.clip(action, -1.0, 1.0)
+        if self.mirrored:
+            action = mirror.mirror_motors(action)
         self.observer.commit(action)
         targets = getup_targets(action, self.robot.home_motor)
         return self.robot.clamp(targets), action, obs
@@ -202,9 +219,17 @@ def _smoothstep(s: float) -> float:
 class Supervisor:
     """Walking, fall detection, get-up and back (see the module's docstring). Not thread-safe; one
     per robot. walking: a DeployLoop; getup_policy: a loaded get-up policy (or a GetupPolicy);
-    rest_motor (12,) [rad]: the pose of resting (default the walking loop's home stance)."""
+    rest_motor (12,) [rad]: the pose of resting (default the walking loop's home stance);
+    getup_mirror_to: GetupPolicy's mirror_to for a loaded get-up policy."""
 
-    def __init__(self, walking, getup_policy, config: SupervisorConfig | None = None, rest_motor=None):
+    def __init__(
+        self,
+        walking,
+        getup_policy,
+        config: SupervisorConfig | None = None,
+        rest_motor=None,
+        getup_mirror_to: str | None = None,
+    ):
         self.walking = walking
         self.cfg = config if config is not None else SupervisorConfig()
         if not isinstance(self.cfg, SupervisorConfig):
@@ -214,7 +239,7 @@ class Supervisor:
         if isinstance(getup_policy, GetupPolicy):
             self.getup = getup_policy
         else:
-            self.getup = GetupPolicy(getup_policy, r, self.dt)
+            self.getup = GetupPolicy(getup_policy, r, self.dt, getup_mirror_to)
         self.safety = SafetyLayer(walking.safety.cfg, r.motor_limits, r.home_motor, self.dt, clamp=r.clamp)
         rest = r.home_motor if rest_motor is None else as_vector(rest_motor, 12, "rest_motor")
         if (

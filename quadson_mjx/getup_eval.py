@@ -22,6 +22,7 @@ from quadson_mjx.env_config import with_added_keys
 from quadson_mjx.getup_env import TOPPLED_CLASS, GetupEnv
 from quadson_mjx.randomize import randomization_fn
 from quadson_mjx.robots.quadson.getup_start import CLASSES
+from quadson_mjx.robots.quadson.mirror import mirror_getup_observation, mirror_motors
 from quadson_mjx.wrappers import wrap_for_training
 
 GROUNDS = {"flat": "flat", "stones": "rough"}  # the evaluation's word -> env.terrain
@@ -47,17 +48,45 @@ def getup_env_config(env_cfg, ground: str, starts: str = "drops"):
     return apply_overrides(cfg, [f"terrain={GROUNDS[ground]}", *STARTS[starts]], prefix="env.")
 
 
+MIRROR_TO = (None, "left", "right")
+
+
+def mirrored_policy(policy, mirror):
+    """policy(obs, key) -> (action, extras) run on the mirror image where mirror (B,) is set: its
+    actor observation mirrored in, its action mirrored out (robots.quadson.mirror)."""
+
+    def run(obs, key):
+        state = obs["state"]
+        m = mirror[:, None]
+        seen = {**obs, "state": jnp.where(m, mirror_getup_observation(state), state)}
+        action, extras = policy(seen, key)
+        return jnp.where(m, mirror_motors(action), action), extras
+
+    return run
+
+
 def evaluate_getup(
-    env_cfg, policy, ground: str = "flat", drops: int = 512, seed: int = 0, starts: str = "drops"
+    env_cfg,
+    policy,
+    ground: str = "flat",
+    drops: int = 512,
+    seed: int = 0,
+    starts: str = "drops",
+    mirror_to: str | None = None,
 ):
     """policy(obs, key) -> (action, extras) (training.load_policy) of a get-up run whose env config
     is env_cfg, over `drops` starts on `ground` -> (rows: one per start class of getup_start.CLASSES
     with drops, successes, success share, time to stand [s] (mean, median, 90th percentile, of the
     successes), share of steps with legs overlapping and with a chain-guarded leg, the largest motor
     speed [rad/s]; total: the same over every start, plus non-finite resets). starts "topples":
-    knock-overs from the home stance instead of drops, one row "toppled"."""
+    knock-overs from the home stance instead of drops, one row "toppled". mirror_to "left" runs the
+    policy mirrored in every episode that starts with the body's right side lower (gravity's body y
+    below 0), so that it always meets the left side's fall ("right": the other way round), as
+    deploy_supervisor.GetupPolicy(mirror_to=...) does at the start of an attempt."""
     if drops < 1:
         raise ValueError(f"get-up evaluation: drops {drops}: need at least 1")
+    if mirror_to not in MIRROR_TO:
+        raise ValueError(f"get-up evaluation: mirror_to {mirror_to!r}; choose from {list(MIRROR_TO)}")
     cfg = getup_env_config(env_cfg, ground, starts)
     env = GetupEnv(cfg)
     n_steps = env.episode_length
@@ -73,10 +102,13 @@ def evaluate_getup(
     def run(key):
         k_reset, k_run = jax.random.split(key)
         state = w.reset(jax.random.split(k_reset, drops))
+        g_y = state.obs["state"][:, 1]  # the first observation's gravity, body y
+        mirror = {None: jnp.zeros_like(g_y, bool), "left": g_y < 0, "right": g_y > 0}[mirror_to]
+        act = mirrored_policy(policy, mirror)
 
         def one(carry, k):
             s, acc = carry
-            action, _ = policy(s.obs, k)
+            action, _ = act(s.obs, k)
             s = w.step(s, action)
             m = s.metrics
             acc = {

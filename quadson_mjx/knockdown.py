@@ -151,14 +151,18 @@ def build(
     sensors: bool = True,
     pushes: bool = False,
     supervisor=None,
+    mirror_to: str | None = None,
 ):
     """Loads the two policies -> (Supervisor over a DeployLoop of walk_file, Plant of sim2sim on
     `terrain` with the walking policy's randomization ranges (and its pushes, when asked), the
-    walking policy's env config). supervisor: a SupervisorConfig (default its defaults)."""
+    walking policy's env config). supervisor: a SupervisorConfig (default its defaults); mirror_to:
+    the get-up policy's (deploy_supervisor.GetupPolicy)."""
     if terrain not in P.TERRAINS:
         raise ValueError(f"unknown terrain {terrain!r}: {', '.join(P.TERRAINS)}")
     walk = deploy.load_policy(walk_file)
-    sup = Supervisor(_Tap(deploy.DeployLoop(walk)), deploy.load_policy(getup_file), supervisor)
+    sup = Supervisor(
+        _Tap(deploy.DeployLoop(walk)), deploy.load_policy(getup_file), supervisor, getup_mirror_to=mirror_to
+    )
     env_cfg = walk.meta["env_config"]
     robot = get_robot(env_cfg.get("robot", "quadson"))
     plant = S.make_plant(
@@ -342,6 +346,7 @@ def run_knockdowns(
     video=None,
     pushes: bool = False,
     supervisor=None,
+    mirror_to: str | None = None,
 ) -> tuple[dict, list[dict]]:
     """n knock-downs (the module's docstring): trials first .. first + n - 1, trial i seeded by
     (seed, i) alone, so one trial of a run can be replayed by itself. record / video: None or an .mcap
@@ -352,7 +357,7 @@ def run_knockdowns(
     if knock not in KNOCKS:
         raise ValueError(f"knock {knock!r}: choose from {', '.join(KNOCKS)}")
     sup, plant, env_cfg = build(
-        walk_file, getup_file, terrain, randomize, pushes=pushes, supervisor=supervisor
+        walk_file, getup_file, terrain, randomize, pushes=pushes, supervisor=supervisor, mirror_to=mirror_to
     )
     rows = []
     for i in range(first, first + n):

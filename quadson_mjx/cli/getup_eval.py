@@ -31,6 +31,11 @@ def parse(argv):
     p.add_argument(
         "--topples", type=int, default=0, help="also this many knock-overs from the home stance per ground"
     )
+    p.add_argument(
+        "--mirror-to",
+        default="none",
+        help="left or right: run the policy mirrored where a start has the other side lower (none)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
     return p.parse_args(argv)
@@ -55,6 +60,9 @@ def main(argv=None) -> int:
         raise UsageError(f"--ground {' '.join(bad)}: choose from {', '.join(GROUND_NAMES)}")
     if args.drops < 1:
         raise UsageError(f"--drops {args.drops}: need at least 1")
+    if args.mirror_to not in ("none", "left", "right"):
+        raise UsageError(f"--mirror-to {args.mirror_to}: choose from none, left, right")
+    mirror_to = None if args.mirror_to == "none" else args.mirror_to
     if args.topples < 0:
         raise UsageError(f"--topples {args.topples}: 0 or more")
     if args.json:
@@ -71,7 +79,7 @@ def main(argv=None) -> int:
     policy, env_cfg, _, _ = load_policy(Path(args.run))
     out = {"argv": argv, "grounds": {}}
     for ground in args.ground:
-        rows, total = evaluate_getup(env_cfg, policy, ground, args.drops, args.seed)
+        rows, total = evaluate_getup(env_cfg, policy, ground, args.drops, args.seed, mirror_to=mirror_to)
         out["grounds"][ground] = {"classes": rows, "total": total}
         print(f"\n{ground}: {args.drops} drops, seed {args.seed}")
         print(
@@ -85,7 +93,9 @@ def main(argv=None) -> int:
                 f"non-finite resets {total['non_finite_resets']}, starts without a valid pose {total['starts_without_valid_pose']}"
             )
         if args.topples:
-            rows, total = evaluate_getup(env_cfg, policy, ground, args.topples, args.seed, "topples")
+            rows, total = evaluate_getup(
+                env_cfg, policy, ground, args.topples, args.seed, "topples", mirror_to
+            )
             out["grounds"][ground]["topples"] = {"classes": rows, "total": total}
             print(_line("toppled", total))
     if args.json:

@@ -63,6 +63,11 @@ def parse(argv):
         "--pushes", action="store_true", help="the walking run's random pushes on the plant as well"
     )
     p.add_argument(
+        "--mirror-to",
+        default="none",
+        help="left or right: the get-up policy runs mirrored when the other side is lower (none)",
+    )
+    p.add_argument(
         "--supervisor",
         action="append",
         default=[],
@@ -94,6 +99,9 @@ def parse(argv):
                     f"--{flag} {path}: a policy file is *.onnx or *.npz, or give a run directory"
                 )
     a.supervisor_config = supervisor_config(a.supervisor)
+    if a.mirror_to not in ("none", "left", "right"):
+        raise UsageError(f"--mirror-to {a.mirror_to}: choose from none, left, right")
+    a.mirror_to = None if a.mirror_to == "none" else a.mirror_to
     if a.json:
         check_writable(a.json, "--json")
     if a.mcap:
@@ -176,7 +184,7 @@ def main(argv=None) -> int:
         walk = policy_file(a.walk, "walk", False, Path(tmp))
         getup = policy_file(a.getup, "getup", True, Path(tmp))
         try:
-            knockdown.build(walk, getup, a.terrain, supervisor=a.supervisor_config)
+            knockdown.build(walk, getup, a.terrain, supervisor=a.supervisor_config, mirror_to=a.mirror_to)
         except (ValueError, KeyError) as e:
             raise UsageError(f"--walk {a.walk} / --getup {a.getup}: the supervisor refuses them: {e}") from e
         origin = "the start" if a.knock == "none" else "the last knock"
@@ -185,7 +193,7 @@ def main(argv=None) -> int:
         summary, rows = knockdown.run_knockdowns(
             walk, getup, a.trials, a.seed, a.terrain, a.seconds, record=a.mcap,
             progress=lambda i, r: print(_line(r), flush=True), knock=a.knock, first=a.first,
-            video=a.video, pushes=a.pushes, supervisor=a.supervisor_config,
+            video=a.video, pushes=a.pushes, supervisor=a.supervisor_config, mirror_to=a.mirror_to,
         )  # fmt: skip
     wall = time.perf_counter() - t0
     s = summary
@@ -202,6 +210,7 @@ def main(argv=None) -> int:
         out = {"command": "python eval/knockdown.py " + shlex.join(argv), "summary": s, "wall_s": wall}
         out |= {"settings": knockdown.settings(a.seconds, knock=a.knock, pushes=a.pushes), "trials": rows}
         out["settings"]["supervisor"] = dataclasses.asdict(a.supervisor_config)
+        out["settings"]["getup_mirror_to"] = a.mirror_to
         write_text_atomic(a.json, json.dumps(out, indent=1))
     return 0
 

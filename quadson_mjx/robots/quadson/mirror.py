@@ -1,0 +1,61 @@
+"""Quadson's left-right mirror symmetry: the reflection across the body's xz plane, as maps of its
+motor angles, its get-up policy's observation and action, and the simulator's qpos.
+
+The robot is mirror-symmetric (the model's geoms at home are mirror images to 0 m; tested on random
+poses in tests/test_mirror.py): the reflection swaps the left and right legs (FL <-> FR, RL <-> RR),
+negates each abduction angle t0 (it turns the leg plane about the body's x axis) and keeps the
+in-plane angles t1, t5 and the passive knees (their axes lie along the body's y axis). Vectors
+change as a reflection does: a polar vector (position, gravity direction) negates its y, an axial
+vector (angular velocity) negates its x and z. The home stance has t0 = 0 and T0_RANGE is symmetric
+about it, so a get-up action (0 home, -1 / +1 each limit) mirrors as the angles do.
+
+Used to run a get-up policy mirrored (deploy_supervisor.GetupPolicy(mirror=True) and
+getup_eval's "mirror" mode): a policy that gets up well from one side gets the other side's fall
+as its mirror image. Works on numpy and JAX arrays alike (indexing and a sign vector only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from quadson_mjx.robots.quadson import constants as C
+
+LEG_SWAP = (1, 0, 3, 2)  # FL, FR, RL, RR -> the leg whose mirror image each is
+assert [C.LEGS[i] for i in LEG_SWAP] == ["FR", "FL", "RR", "RL"]
+
+_MOTOR_INDEX = np.array([3 * leg + k for leg in LEG_SWAP for k in range(3)])
+_MOTOR_SIGN = np.tile([-1.0, 1.0, 1.0], 4)  # t0 negated, t1 and t5 kept
+# getup_observation: gravity (3), gyro (3), motor_pos (12), last_action (12)
+_OBS_INDEX = np.concatenate([np.arange(6), 6 + _MOTOR_INDEX, 18 + _MOTOR_INDEX])
+_OBS_SIGN = np.concatenate([[1.0, -1.0, 1.0], [-1.0, 1.0, -1.0], _MOTOR_SIGN, _MOTOR_SIGN])
+OBS_SIZE = len(_OBS_INDEX)  # 30
+
+
+def mirror_motors(x):
+    """(..., 12) motor angles [rad], or get-up actions, in the robot's motor order -> their mirror
+    image: legs swapped, t0 (and its action) negated."""
+    return x[..., _MOTOR_INDEX] * _MOTOR_SIGN.astype(x.dtype)
+
+
+def mirror_getup_observation(obs):
+    """(..., 30) obs_spec.getup_observation -> the observation of the mirrored robot."""
+    if obs.shape[-1] != OBS_SIZE:
+        raise ValueError(f"mirror: a get-up observation has {OBS_SIZE} values, got {obs.shape[-1]}")
+    return obs[..., _OBS_INDEX] * _OBS_SIGN.astype(obs.dtype)
+
+
+def mirror_qpos(qpos, joint_names, qpos_adr):
+    """(nq,) numpy qpos of the full model (free root joint first) -> the mirrored state's qpos.
+    joint_names: the model's hinge joint names ("FL_motor0_joint", ...); qpos_adr: their qpos
+    addresses. Root position (x, -y, z), root quaternion (w, -x, y, -z), each joint's value moved
+    to its partner leg's joint, abduction joints negated."""
+    out = np.array(qpos, np.float64, copy=True)
+    out[1] = -qpos[1]
+    out[3:7] = qpos[3:7] * np.array([1.0, -1.0, 1.0, -1.0])
+    swap = {a: b for a, b in zip(C.LEGS, [C.LEGS[i] for i in LEG_SWAP], strict=True)}
+    where = dict(zip(joint_names, qpos_adr, strict=True))
+    for name, adr in where.items():
+        leg, rest = name.split("_", 1)
+        sign = -1.0 if rest == C.MOTORS[0] + "_joint" else 1.0
+        out[where[f"{swap[leg]}_{rest}"]] = sign * qpos[adr]
+    return out
