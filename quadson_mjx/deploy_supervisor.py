@@ -166,7 +166,7 @@ class GetupPolicy:
     def __init__(self, policy, robot, ctrl_dt: float, mirror_to: str | None = None):
         if mirror_to not in (None, "left", "right"):
             raise ValueError(f"get-up policy: mirror_to {mirror_to!r}; choose from None, 'left', 'right'")
-        self.mirror_to, self.mirrored = mirror_to, False
+        self.mirror_to, self.mirrored, self._decided = mirror_to, False, False
         self.policy, self.robot, self.ctrl_dt = policy, robot, float(ctrl_dt)
         self.obs_spec = obs_spec.getup_observation(robot.motor_names)
         self.action_spec = obs_spec.getup_action(robot.motor_names)

@@ -9,6 +9,7 @@ speed (no sensor evaluation, feet-only ground contact, no joint-limit rows) and 
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
@@ -140,3 +141,15 @@ def base_bottom_points(half_size, n_x: int = 5, n_y: int = 3) -> np.ndarray:
     hx, hy, hz = half_size
     x, y = np.meshgrid(np.linspace(-hx, hx, n_x), np.linspace(-hy, hy, n_y), indexing="ij")
     return np.stack([x.ravel(), y.ravel(), np.full(x.size, -hz)], axis=-1)
+
+
+def motoring_forcerange(forcerange, qdot, speed_knee):
+    """A position servo's torque-speed limit for one physics step: forcerange (n, 2) [N m] of the
+    servos' actuators, qdot (n,) their joints' speeds [rad/s] -> (n, 2). While motoring (torque
+    along qdot) the torque is at most peak min(1, max(0, 2 - |qdot| / speed_knee)): the full peak up
+    to speed_knee, falling to 0 at twice it; braking keeps the full range. This is
+    sim2sim_plant.servo_torque's limit for a line whose stall torque is twice the peak (Quadson: the
+    driver's 10 A up to 31.4 rad/s, the 24 V supply's line to 0 at 62.8 rad/s). JAX."""
+    lo, peak = forcerange[:, 0], forcerange[:, 1]
+    cap = peak * jnp.clip(2.0 - jnp.abs(qdot) / speed_knee, 0.0, 1.0)
+    return jnp.stack([jnp.where(qdot < 0, -cap, lo), jnp.where(qdot > 0, cap, peak)], -1)

@@ -57,6 +57,10 @@ GETUP = {
     # 0 here (the first get-up runs had none); env_config(task="getup") sets TOPPLE_PROB
     "topple_prob": 0.0,
     "topple_rate_rps": (2.0, 8.0),  # the tipping rate, uniform [rad/s]
+    # the servos' torque-speed limit in the physics (env_model.motoring_forcerange: full torque to
+    # constants.MOTOR_VELOCITY_LIMIT, 31.4 rad/s, none at twice it, as sim2sim's servo model);
+    # without it the trained policies drove motors to 62-80 rad/s. Not yet in a trained run
+    "servo_speed_limit": False,
     **SUCCESS,
     "upright_gate_rad": math.radians(30.0),  # height and pose terms fade in from this tilt to 0
     "height_sigma_m": 0.03,
@@ -75,6 +79,7 @@ GETUP_RULES: dict[str, Rule] = {
     "getup.stand_start_prob": Rule("number", 0.0, 1.0, "(a probability)"),
     "getup.topple_prob": Rule("number", 0.0, 1.0, "(a probability)"),
     "getup.topple_rate_rps": Rule("pair", 0.0, 50.0, "rad/s"),
+    "getup.servo_speed_limit": Rule("bool"),
     "getup.success_tilt_rad": Rule("number", 0.0, math.pi / 2, _RAD, lo_open=True),
     "getup.success_height_m": Rule("number", 0.0, 0.5, _M, lo_open=True),
     "getup.success_hold_s": Rule("number", 0.0, 60.0, _S),

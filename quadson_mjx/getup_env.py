@@ -48,7 +48,7 @@ from mujoco import mjx
 
 from quadson_mjx import obs_spec, rewards, sensors, terrain
 from quadson_mjx.env import EXPLODED_SPEED, LocomotionEnv
-from quadson_mjx.env_model import name_ids
+from quadson_mjx.env_model import motoring_forcerange, name_ids
 from quadson_mjx.quat import quat_rotate_inverse
 from quadson_mjx.robots.quadson import chain_guard, getup_start
 from quadson_mjx.robots.quadson import constants as C
@@ -179,7 +179,14 @@ class GetupEnv(LocomotionEnv):
 
         def substep(data, i):
             c = jnp.where(i < info["latency_steps"], info["last_ctrl"], ctrl)
-            data = mjx.step(self.sys, data.replace(ctrl=c))
+            sys = self.sys
+            if cfg.getup.servo_speed_limit:  # static: the servos' torque-speed line at this step's speed
+                act = self._actuator_of_motor
+                fr = motoring_forcerange(
+                    sys.actuator_forcerange[act], data.qvel[self._motor_dof], C.MOTOR_VELOCITY_LIMIT
+                )
+                sys = sys.replace(actuator_forcerange=sys.actuator_forcerange.at[act].set(fr))
+            data = mjx.step(sys, data.replace(ctrl=c))
             return data, (data.qpos, data.qvel)
 
         data = state.pipeline_state

@@ -31,7 +31,9 @@ N = 32  # environments of the compiled batch
 def getup():
     """The task's env (half the starts standing) with its reset and step jitted and vmapped once."""
     cfg = apply_overrides(
-        env_config(task="getup", randomize=True), ["getup.stand_start_prob=0.5"], prefix="env."
+        env_config(task="getup", randomize=True),
+        ["getup.stand_start_prob=0.5", "getup.servo_speed_limit=true"],  # every step through the limit
+        prefix="env.",
     )
     env = GetupEnv(cfg)
     return env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
@@ -286,3 +288,45 @@ def test_back_reach_bounds_against_mujoco_c_and_hand_values():
     assert np.hypot(0.025, 0.02) < C.BASE_HALF_SIZE[2]
     assert all(0.0 < x < C.LINK_RADIUS + 2 * C.FOOT_RADIUS for x in r["reach_m"])
     assert r["can_push"] and not r["can_tip_sideways"] and not r["can_tip_lengthwise"]
+
+
+def test_servo_speed_limit_is_sim2sims_servo_model(getup):
+    """The torque of the task's position servos under env_model.motoring_forcerange, computed by
+    MuJoCo C's actuation, equals sim2sim_plant.servo_torque (the deploy-side servo model, numpy)
+    with Quadson's line (stall twice the peak, no-load speed twice MOTOR_VELOCITY_LIMIT), at speeds
+    from -70 to 65 rad/s with the error driving with and against the motion."""
+    from quadson_mjx.env_model import motoring_forcerange
+    from quadson_mjx.sim2sim_plant import MOTOR_TORQUE_SPEED, servo_torque
+
+    env = getup[0]
+    m = env.mj_model
+    d = mujoco.MjData(m)
+    act = np.asarray(env._actuator_of_motor)
+    dof = np.asarray(env._motor_dof)
+    qadr = np.asarray(env._motor_qpos)
+    speed = np.array([-70.0, -50.0, -40.0, -20.0, 0.0, 10.0, 20.0, 35.0, 45.0, 55.0, 65.0, 5.0])
+    no_load, stall = MOTOR_TORQUE_SPEED["quadson"]
+    assert no_load == pytest.approx(2 * C.MOTOR_VELOCITY_LIMIT)
+    nominal = m.actuator_forcerange.copy()
+    for push in (1.0, -1.0):  # the error along the motion of the positive speeds, then against
+        mujoco.mj_resetDataKeyframe(m, d, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home"))
+        d.qvel[dof] = speed
+        target = d.qpos[qadr] + push * np.sign(speed + 1e-9) * 0.5
+        d.ctrl[act] = target
+        m.actuator_forcerange[:] = nominal
+        m.actuator_forcerange[act] = np.asarray(
+            motoring_forcerange(nominal[act], speed, C.MOTOR_VELOCITY_LIMIT), np.float64
+        )
+        mujoco.mj_forward(m, d)
+        kp, kd, peak = m.actuator_gainprm[act, 0], -m.actuator_biasprm[act, 2], nominal[act, 1]
+        assert stall == pytest.approx(2 * peak[0])
+        want = servo_torque(target, d.qpos[qadr], speed, kp, kd, peak, stall, no_load, 0.0)
+        np.testing.assert_allclose(d.actuator_force[act], want, atol=1e-9)
+    m.actuator_forcerange[:] = nominal
+    # by hand: motoring at 45 rad/s leaves peak (2 - 45 / 31.4); at 65 rad/s nothing
+    assert d.actuator_force[act][8] == pytest.approx(-peak[8], rel=1e-6)  # braking: the full peak (float32)
+    top = np.asarray(motoring_forcerange(nominal[act], speed, C.MOTOR_VELOCITY_LIMIT))
+    assert (
+        top[8, 1] == pytest.approx(peak[8] * (2 - 45.0 / C.MOTOR_VELOCITY_LIMIT), rel=1e-6)
+        and top[10, 1] == 0.0
+    )
