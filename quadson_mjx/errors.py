@@ -172,6 +172,15 @@ def check_readable(path, what: str = "input") -> Path:
     return path
 
 
+def check_run_dir(path, what: str = "--run") -> Path:
+    """Raise UsageError when `path` is not a training run directory (a folder with config.json).
+    -> Path(path)."""
+    path = Path(path)
+    if not (path / "config.json").is_file():
+        raise UsageError(f"{what} {path}: not a training run directory (no config.json in it)")
+    return path
+
+
 def check_number(name: str, value, low: float = -math.inf, high: float = math.inf, *, above: bool = False):
     """Raise UsageError unless `value` is a finite number with low <= value <= high (low < value
     when `above`). `name` is the argument as the user typed it ("--seconds"). -> value."""

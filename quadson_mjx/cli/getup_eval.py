@@ -18,7 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-from quadson_mjx.errors import UsageError, check_writable, one_line_errors, write_text_atomic
+from quadson_mjx.errors import UsageError, check_run_dir, check_writable, one_line_errors, write_text_atomic
 
 GROUND_NAMES = ("flat", "stones")
 
@@ -53,8 +53,7 @@ def _line(name: str, r: dict) -> str:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = parse(argv)
-    if not (Path(args.run) / "config.json").is_file():
-        raise UsageError(f"--run {args.run}: not a training run directory (no config.json)")
+    check_run_dir(args.run)
     bad = [g for g in args.ground if g not in GROUND_NAMES]
     if bad:
         raise UsageError(f"--ground {' '.join(bad)}: choose from {', '.join(GROUND_NAMES)}")

@@ -32,6 +32,7 @@ from quadson_mjx.errors import (
     UsageError,
     check_number,
     check_readable,
+    check_run_dir,
     check_writable,
     one_line_errors,
     write_text_atomic,
@@ -90,8 +91,7 @@ def parse(argv):
     for flag in ("walk", "getup"):
         path = Path(getattr(a, flag))
         if path.is_dir():
-            if not (path / "config.json").is_file():
-                raise UsageError(f"--{flag} {path}: not a training run directory (no config.json)")
+            check_run_dir(path, f"--{flag}")
         else:
             check_readable(path, f"--{flag}")
             if path.suffix.lower() not in (".onnx", ".npz"):

@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from quadson_mjx.errors import UsageError, check_writable, one_line_errors, write_text_atomic
+from quadson_mjx.errors import UsageError, check_run_dir, check_writable, one_line_errors, write_text_atomic
 
 MAX_SECONDS = 60.0
 
@@ -39,8 +39,7 @@ def parse(argv):
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = parse(argv)
-    if not (Path(args.run) / "config.json").is_file():
-        raise UsageError(f"--run {args.run}: not a training run directory (no config.json)")
+    check_run_dir(args.run)
     if not 1.0 < args.seconds <= MAX_SECONDS:
         raise UsageError(f"--seconds {args.seconds}: give a trial length in (1, {MAX_SECONDS:g}] s")
     if args.envs < 1:
