@@ -164,9 +164,9 @@ class GetupPolicy:
     the fall of the side it gets up from better; None: never."""
 
     def __init__(self, policy, robot, ctrl_dt: float, mirror_to: str | None = None):
-        if mirror_to not in (None, "left", "right"):
-            raise ValueError(f"get-up policy: mirror_to {mirror_to!r}; choose from None, 'left', 'right'")
-        self.mirror_to, self.mirrored, self._decided = mirror_to, False, False
+        mirror.wants_mirror(0.0, mirror_to)  # a bad mirror_to: ValueError now
+        self.mirror_to = mirror_to
+        self.mirrored: bool | None = None  # this attempt's choice; None until its first tick
         self.policy, self.robot, self.ctrl_dt = policy, robot, float(ctrl_dt)
         self.obs_spec = obs_spec.getup_observation(robot.motor_names)
         self.action_spec = obs_spec.getup_action(robot.motor_names)
@@ -188,17 +188,15 @@ class GetupPolicy:
     def reset(self) -> None:
         """A new attempt: last action 0; mirrored or not is decided on its first tick."""
         self.observer.reset()
-        self._decided = False
+        self.mirrored = None
 
     def act(self, quat, gyro, motor_pos, resync: bool = False):
         """Checked readings -> (motor targets (12,) [rad] clamped, action (12,), obs (30,)), or None
         when the policy's output is not 12 finite numbers. action and obs are the robot's (not
         mirrored)."""
         obs = self.observer.observe(quat, gyro, motor_pos, np.zeros(3), None, 0.0, self.ctrl_dt, resync)
-        if not self._decided:
-            g_y = float(obs[1])  # gravity.y, obs_spec.getup_observation
-            self.mirrored = {None: False, "left": g_y < 0.0, "right": g_y > 0.0}[self.mirror_to]
-            self._decided = True
+        if self.mirrored is None:
+            self.mirrored = bool(mirror.wants_mirror(float(obs[1]), self.mirror_to))  # gravity.y
         seen = mirror.mirror_getup_observation(obs) if self.mirrored else obs
         action = np.asarray(self.policy(seen), np.float32).reshape(-1)
         if action.shape != (self.action_spec.size,) or not np.all(np.isfinite(action)):

@@ -11,8 +11,6 @@ acts with its mean action, as deployed. One episode per drop, 6 s.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -20,10 +18,9 @@ import numpy as np
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env_config import with_added_keys
 from quadson_mjx.getup_env import TOPPLED_CLASS, GetupEnv
-from quadson_mjx.randomize import randomization_fn
 from quadson_mjx.robots.quadson.getup_start import CLASSES
-from quadson_mjx.robots.quadson.mirror import mirror_getup_observation, mirror_motors
-from quadson_mjx.wrappers import wrap_for_training
+from quadson_mjx.robots.quadson.mirror import mirror_getup_observation, mirror_motors, wants_mirror
+from quadson_mjx.wrappers import wrap_for_evaluation
 
 GROUNDS = {"flat": "flat", "stones": "rough"}  # the evaluation's word -> env.terrain
 
@@ -46,9 +43,6 @@ def getup_env_config(env_cfg, ground: str, starts: str = "drops"):
     if starts not in STARTS:
         raise ValueError(f"get-up evaluation: starts {starts!r}; choose from {list(STARTS)}")
     return apply_overrides(cfg, [f"terrain={GROUNDS[ground]}", *STARTS[starts]], prefix="env.")
-
-
-MIRROR_TO = (None, "left", "right")
 
 
 def mirrored_policy(policy, mirror):
@@ -85,26 +79,17 @@ def evaluate_getup(
     deploy_supervisor.GetupPolicy(mirror_to=...) does at the start of an attempt."""
     if drops < 1:
         raise ValueError(f"get-up evaluation: drops {drops}: need at least 1")
-    if mirror_to not in MIRROR_TO:
-        raise ValueError(f"get-up evaluation: mirror_to {mirror_to!r}; choose from {list(MIRROR_TO)}")
+    wants_mirror(0.0, mirror_to)  # a bad mirror_to: ValueError before compiling
     cfg = getup_env_config(env_cfg, ground, starts)
     env = GetupEnv(cfg)
     n_steps = env.episode_length
-    rand = None
-    if cfg.randomize:
-        rand = functools.partial(
-            randomization_fn(cfg.randomization, env.base_body),
-            rng=jax.random.split(jax.random.PRNGKey(seed + 1), drops),
-        )
-    w = wrap_for_training(env, n_steps + 1, randomization_fn=rand)
+    w = wrap_for_evaluation(env, cfg, drops, seed, n_steps)
 
     @jax.jit
     def run(key):
         k_reset, k_run = jax.random.split(key)
         state = w.reset(jax.random.split(k_reset, drops))
-        g_y = state.obs["state"][:, 1]  # the first observation's gravity, body y
-        mirror = {None: jnp.zeros_like(g_y, bool), "left": g_y < 0, "right": g_y > 0}[mirror_to]
-        act = mirrored_policy(policy, mirror)
+        act = mirrored_policy(policy, wants_mirror(state.obs["state"][:, 1], mirror_to))  # gravity.y
 
         def one(carry, k):
             s, acc = carry

@@ -120,13 +120,20 @@ class Shove:
         m = plant.m
         g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
         self.top = m.geom_pos[g] + np.array([0.0, 0.0, m.geom_size[g][2]])  # in the base's frame
-        self.phi, self.force, self.ticks = float(rng.uniform(-math.pi, math.pi)), np.zeros(3), 0
+        self.phi, self.direction, self.force, self.ticks = (
+            float(rng.uniform(-math.pi, math.pi)),
+            None,
+            None,
+            0,
+        )
 
     def start(self, n: int, dt: float) -> dict:
-        u = np.array([math.cos(self.phi), math.sin(self.phi), 0.0])
-        world = quat_rotate(self.plant.d.qpos[3:7], u) if n == 0 else self.direction
-        world[2] = 0.0
-        self.direction = world / max(float(np.linalg.norm(world)), 1e-9)
+        if self.direction is None:  # the first shove fixes the direction, horizontal in the world
+            world = quat_rotate(
+                self.plant.d.qpos[3:7], np.array([math.cos(self.phi), math.sin(self.phi), 0.0])
+            )
+            world[2] = 0.0
+            self.direction = world / max(float(np.linalg.norm(world)), 1e-9)
         self.force = SHOVE_FORCES_N[n] * self.direction
         self.ticks = int(round(SHOVE_S / dt))
         return {"dir_deg": math.degrees(self.phi), "force_n": SHOVE_FORCES_N[n], "duration_s": SHOVE_S}

@@ -16,8 +16,6 @@ the only one counted.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,8 +23,7 @@ import numpy as np
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
-from quadson_mjx.randomize import randomization_fn
-from quadson_mjx.wrappers import SUCCESS_SHARE, wrap_for_training
+from quadson_mjx.wrappers import SUCCESS_SHARE, wrap_for_evaluation
 
 SETTLE_S = 1.0  # the first second of a trial is left out of the RMS
 CENTRE_M = 0.02  # robots start this close to their tile's centre
@@ -78,13 +75,7 @@ def evaluate_tiles(
     level_idx = np.tile(np.repeat(np.asarray(levels), envs_per_tile), len(types))
     n = type_idx.size
     n_steps = int(round(seconds / env.ctrl_dt))
-    rand = None
-    if cfg.randomize:
-        rand = functools.partial(
-            randomization_fn(cfg.randomization, env.base_body),
-            rng=jax.random.split(jax.random.PRNGKey(seed + 1), n),
-        )
-    w = wrap_for_training(env, n_steps + 1, randomization_fn=rand)
+    w = wrap_for_evaluation(env, cfg, n, seed, n_steps)
     cmd = jnp.broadcast_to(jnp.asarray(command, jnp.float32), (n, 3))
     speed = float(np.linalg.norm(np.asarray(command, float)[:2]))
 

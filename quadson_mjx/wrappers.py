@@ -17,12 +17,15 @@ observation, no physics step). `info["tile_result"]` keeps each robot's last fin
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 from brax.envs.base import State, Wrapper
 from brax.envs.wrappers import training as brax_training
 
 from quadson_mjx import terrain_tiles
+from quadson_mjx.randomize import randomization_fn
 
 SUCCESS_SHARE = 0.8  # a tile episode succeeds with no fall and this share of its commanded distance
 
@@ -149,3 +152,16 @@ def wrap_for_training(env, episode_length: int, action_repeat: int = 1, randomiz
         env = brax_training.DomainRandomizationVmapWrapper(env, randomization_fn)
     env = brax_training.EpisodeWrapper(env, episode_length, action_repeat)
     return ResamplingAutoReset(env, episode_length)
+
+
+def wrap_for_evaluation(env, cfg, n: int, seed: int, steps: int):
+    """n copies of env for an evaluation of `steps` steps, in the training wrappers (no episode ends
+    within them): each on its own model randomized over cfg.randomization (keys from seed + 1) when
+    cfg.randomize, else all on the nominal model."""
+    rand = None
+    if cfg.randomize:
+        rand = functools.partial(
+            randomization_fn(cfg.randomization, env.base_body),
+            rng=jax.random.split(jax.random.PRNGKey(seed + 1), n),
+        )
+    return wrap_for_training(env, steps + 1, randomization_fn=rand)

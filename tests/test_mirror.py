@@ -172,3 +172,36 @@ def test_getup_policy_mirrors_an_attempt_decided_on_its_first_tick():
     assert not gp.mirrored and np.allclose(sent, action) and np.allclose(rec.seen[-1], obs3)
     with pytest.raises(ValueError, match="mirror_to"):
         GetupPolicy(rec, kin, 0.02, mirror_to="up")
+
+
+def test_evaluation_mirrors_the_chosen_rows_in_jax():
+    """getup_eval.mirrored_policy under jit: rows whose first gravity y is below 0 (mirror_to
+    "left") give the policy the mirrored actor observation and return its mirrored action; the
+    critic's input and the other rows pass unchanged."""
+    import jax
+    import jax.numpy as jnp
+
+    from quadson_mjx.getup_eval import mirrored_policy
+
+    rng = np.random.default_rng(5)
+    state = jnp.asarray(rng.normal(size=(4, 30)), jnp.float32)
+    priv = jnp.asarray(rng.normal(size=(4, 7)), jnp.float32)
+
+    def policy(obs, key):
+        return jnp.arange(1.0, 13.0) * obs["state"][:, 1:2], obs["privileged_state"]  # not symmetric
+
+    choose = M.wants_mirror(state[:, 1], "left")
+    np.testing.assert_array_equal(np.asarray(choose), np.asarray(state[:, 1]) < 0)
+    action, critic_saw = jax.jit(mirrored_policy(policy, choose))(
+        {"state": state, "privileged_state": priv}, None
+    )
+    s, a, c = np.asarray(state), np.asarray(action), np.asarray(choose)
+    assert 0 < c.sum() < 4
+    for i in range(4):
+        ramp = np.arange(1.0, 13.0)
+        want = M.mirror_motors(ramp * -s[i, 1]) if c[i] else ramp * s[i, 1]  # mirrored: gravity y negated
+        np.testing.assert_allclose(a[i], want, atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(critic_saw), np.asarray(priv))
+    np.testing.assert_array_equal(np.asarray(M.wants_mirror(state[:, 1], None)), np.zeros(4, bool))
+    with pytest.raises(ValueError, match="mirror_to"):
+        M.wants_mirror(0.0, "both")

@@ -31,6 +31,23 @@ _OBS_SIGN = np.concatenate([[1.0, -1.0, 1.0], [-1.0, 1.0, -1.0], _MOTOR_SIGN, _M
 OBS_SIZE = len(_OBS_INDEX)  # 30
 
 
+MIRROR_TO = (None, "left", "right")
+
+
+def wants_mirror(gravity_y, mirror_to: str | None):
+    """Whether a get-up attempt runs on the mirror image, from gravity's body y at its start (a
+    scalar or an array, numpy or JAX): mirror_to "left" mirrors when the right side is lower
+    (gravity_y < 0), so the policy always meets the left side's fall; "right" the other way; None
+    never."""
+    if mirror_to not in MIRROR_TO:
+        raise ValueError(f"mirror_to {mirror_to!r}; choose from None, 'left', 'right'")
+    if mirror_to == "left":
+        return gravity_y < 0
+    if mirror_to == "right":
+        return gravity_y > 0
+    return (gravity_y < 0) & False  # never, in gravity_y's shape and array kind
+
+
 def mirror_motors(x):
     """(..., 12) motor angles [rad], or get-up actions, in the robot's motor order -> their mirror
     image: legs swapped, t0 (and its action) negated."""
