@@ -378,9 +378,6 @@ class LocomotionEnv(Env):
         step = self._ctrl_dt / cycle_s  # one control step, as a fraction of the cycle
         stance_near = self.scheduled_stance(info["gait_progress"] + jnp.stack([-step, 0.0, step]))
         stance = stance_near[1]
-        terms = self._get_reward(data, action, info, rpy, lin_vel, ang_vel, height, contact, stance_near)
-        weights = cfg.reward.weights
-        reward = sum(weights[k] * v for k, v in terms.items())
         term = cfg.termination
         below = self.base_clearance(data.qpos) < term.base_clearance_m
         fallen = (
@@ -390,6 +387,11 @@ class LocomotionEnv(Env):
         )
         if term.base_below_terrain:
             fallen = fallen | below
+        terms = self._get_reward(
+            data, action, info, rpy, lin_vel, ang_vel, height, contact, stance_near, fallen
+        )
+        weights = cfg.reward.weights
+        reward = sum(weights[k] * v for k, v in terms.items())
         off_field = ~terrain.on_field(self._field, data.qpos[:2], term.off_field_margin_m)
         done = fallen | off_field | ~sane
         err = jnp.square(jnp.stack([lin_vel[0], lin_vel[1], ang_vel[2]]) - info["command"])
@@ -575,11 +577,13 @@ class LocomotionEnv(Env):
         )
         return self._obs_spec.assemble(parts)
 
-    def _get_reward(self, data, action, info, rpy, lin_vel, ang_vel, height, contact, stance_near) -> dict:
+    def _get_reward(
+        self, data, action, info, rpy, lin_vel, ang_vel, height, contact, stance_near, fallen
+    ) -> dict:
         """Unweighted reward terms (rewards.locomotion_terms); height: the base origin above the ground
         under it [m]; contact (4,) bool: the feet on the ground (at the last substep, foot_contact);
         stance_near (3, 4) bool: the phase table's stance legs one control step before, at and after
-        the end of the step."""
+        the end of the step; fallen () bool: this step ends the episode by a fall."""
         return rewards.locomotion_terms(
             self._config.reward,
             self._forward_target,
@@ -594,4 +598,5 @@ class LocomotionEnv(Env):
             contact=contact,
             stance=stance_near[1],
             stance_near=stance_near,
+            fallen=fallen,
         )

@@ -54,6 +54,9 @@ def reward_config(height_target: float, command_tracking: bool = False) -> ml_co
         # all four feet agree with the phase table within one control step (the gait evaluation's
         # pattern match; the gait recipes), off otherwise
         "contact_pattern": 0.0,
+        # paid once, on the step an episode ends by a fall (tilt, height, the base in the ground);
+        # a truncation (time, the field's edge) is not a fall. Off unless a recipe sets it.
+        "termination": 0.0,
     }
     return ml_collections.ConfigDict(
         {
@@ -131,6 +134,7 @@ ENV_KEYS_ADDED = {
     "reward.weights.ang_vel_xy_l2": 0.0,
     "reward.weights.contact_phase": 0.0,
     "reward.weights.contact_pattern": 0.0,
+    "reward.weights.termination": 0.0,
     "reward.target_gait_speed": False,
     "gait_scale.cycle_s": 1.0,
     "gait_scale.step_length_m": 1.0,

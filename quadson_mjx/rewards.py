@@ -111,12 +111,14 @@ def locomotion_terms(
     contact,
     stance,
     stance_near,
+    fallen,
 ) -> dict:
     """Every term of the locomotion environment, unweighted, by name (the config's reward.weights
     keys). r: the env config's `reward` group; forward_target [m/s]; body-frame velocities (3,);
     rpy (3,) [rad]; height above the ground under the base [m]; command (3,); contact, stance (4,)
     bool: feet on the ground and the phase table's stance legs; stance_near (3, 4) bool: the table's
-    stance one control step before, at and after this one."""
+    stance one control step before, at and after this one; fallen () bool: the episode ends by a
+    fall on this step (tilt, height, base in the ground), the one step the termination term pays."""
     return {
         "forward_velocity_exp": forward_velocity_exp(lin_vel, forward_target, r.forward_sigma),
         "lateral_l2": lateral_l2(lin_vel, ang_vel),
@@ -131,6 +133,7 @@ def locomotion_terms(
         "ang_vel_xy_l2": ang_vel_xy_l2(ang_vel),
         "contact_phase": contact_phase(contact, stance),
         "contact_pattern": contact_pattern(contact, stance_near),
+        "termination": jnp.asarray(fallen, jnp.float32),
     }
 
 

@@ -2,7 +2,8 @@
 truncation, NaN safety, and the gait-only controller standing its first second.
 
 Compiled functions are shared through module fixtures: one jitted reset and step of the seed
-preset, one wrapped (vmapped, auto-reset) step over 2 environments.
+preset (with a termination weight, which the preset leaves at 0, so that the term shows), one wrapped
+(vmapped, auto-reset) step over 2 environments.
 """
 
 import math
@@ -21,9 +22,12 @@ from quadson_mjx.quat import quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.wrappers import wrap_for_training
 
 
+TERMINATION = -10.0
+
+
 @pytest.fixture(scope="module")
 def env():
-    return LocomotionEnv(env_config())
+    return LocomotionEnv(apply_overrides(env_config(), [f"reward.weights.termination={TERMINATION}"]))
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +49,7 @@ def test_sizes_and_finite_first_step(env, fns):
     s = step(s, jnp.zeros(12))
     assert s.obs.shape == (29,) and bool(jnp.all(jnp.isfinite(s.obs)))
     assert float(s.done) == 0.0 and float(s.metrics["nan_reset"]) == 0.0
+    assert float(s.metrics["reward/termination"]) == 0.0  # standing: no fall, nothing paid
     # phase features: sin/cos of 2 pi phase; trot FL/RR at phase 0.025 after one 0.02 s step of a 0.8 s cycle
     phase = 2 * math.pi * (0.02 / 0.8 + np.array([0.0, 0.5, 0.5, 0.0]))
     np.testing.assert_allclose(s.obs[21:25], np.sin(phase), atol=1e-5)
@@ -99,7 +104,7 @@ def test_reward_terms_by_hand(env, fns):
     # the table one step before and after: FR's stance ends this step (it was down one step ago)
     stance_near = jnp.stack([jnp.array([True, True, False, True]), stance, stance])
     terms = env._get_reward(
-        s.pipeline_state, jnp.full(12, 0.5), info, rpy, lin_vel, ang_vel, z, contact, stance_near
+        s.pipeline_state, jnp.full(12, 0.5), info, rpy, lin_vel, ang_vel, z, contact, stance_near, True
     )
     # forward (sigma 0.25): exp(-(0.3 - 0.5)^2 / (2 * 0.0625)) = exp(-0.32); lateral: 0.5*0.01 + 0.3*0.25 = 0.08;
     # vertical: 0.5*0.04 + 0.3*1 = 0.32; orientation: 40*0.01 + 30*0.04 + 5*0.09 = 2.05;
@@ -113,6 +118,7 @@ def test_reward_terms_by_hand(env, fns):
     assert float(terms["contact_phase"]) == pytest.approx(0.75)  # 3 of 4 feet agree with the table
     # FR is down one step after the table lifted it: inside the one-step tolerance, so all four agree
     assert float(terms["contact_pattern"]) == 1.0
+    assert float(terms["termination"]) == 1.0  # the step's fall flag, as given
     # the seed preset's weights: its four terms as printed, tracking terms off
     w = env.config.reward.weights
     assert (w.forward_velocity_exp, w.lateral_l2, w.vertical_l2, w.orientation_l2) == (1.0, -0.8, -0.8, -1.0)
@@ -148,6 +154,9 @@ def test_flipped_robot_terminates(fns):
     s = s.replace(pipeline_state=d.replace(qpos=d.qpos.at[3:7].set(quat)))
     s = step(s, jnp.zeros(12))
     assert float(s.done) == 1.0 and float(s.metrics["nan_reset"]) == 0.0
+    # a fall, paid once by the termination term
+    assert float(s.metrics["fall"]) == 1.0
+    assert float(s.metrics["reward/termination"]) == TERMINATION
 
 
 def test_nan_state_ends_episode_counted_and_clean(fns, wrapped):
@@ -176,6 +185,7 @@ def test_time_limit_is_truncation_not_failure(wrapped):
         ws = wstep(ws, jnp.zeros((2, 12)))
     np.testing.assert_array_equal(ws.done, [1.0, 1.0])
     np.testing.assert_array_equal(ws.info["truncation"], [1.0, 1.0])  # ended by the limit, not a fall
+    np.testing.assert_array_equal(ws.metrics["reward/termination"], [0.0, 0.0])  # and not paid as one
     ws = wstep(ws, jnp.zeros((2, 12)))
     np.testing.assert_array_equal(ws.info["steps"], [1, 1])  # auto-reset started a new episode
 

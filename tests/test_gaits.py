@@ -567,6 +567,7 @@ def _weighted_reward(cfg, rpy):
         contact=jnp.array([True, False, False, True]),
         stance=jnp.array([True, False, False, True]),
         stance_near=jnp.tile(jnp.array([True, False, False, True]), (3, 1)),
+        fallen=False,
     )
     return float(sum(cfg.reward.weights[k] * v for k, v in terms.items()))
 
