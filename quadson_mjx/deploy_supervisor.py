@@ -161,11 +161,11 @@ class GetupPolicy:
     mirror_to "left" (or "right"): an attempt whose first tick has the body's right (left) side
     lower, gravity's body y below (above) 0, runs the policy on the robot's mirror image
     (robots.quadson.mirror: observation mirrored in, action mirrored out), so that it always meets
-    the fall of the side it gets up from better; None: never."""
+    the fall of the side it gets up from better; None: never; mirror.TRAINED (the default): the side
+    the policy was trained on (its file's env.getup.mirror_to; None for a policy trained on both
+    sides). A policy trained on one side refuses another mirror_to (mirror.resolve_mirror_to)."""
 
-    def __init__(self, policy, robot, ctrl_dt: float, mirror_to: str | None = None):
-        mirror.wants_mirror(0.0, mirror_to)  # a bad mirror_to: ValueError now
-        self.mirror_to = mirror_to
+    def __init__(self, policy, robot, ctrl_dt: float, mirror_to: str | None = mirror.TRAINED):
         self.mirrored: bool | None = None  # this attempt's choice; None until its first tick
         self.policy, self.robot, self.ctrl_dt = policy, robot, float(ctrl_dt)
         self.obs_spec = obs_spec.getup_observation(robot.motor_names)
@@ -177,6 +177,7 @@ class GetupPolicy:
                 f"the get-up task has {self.obs_spec.size} and {self.action_spec.size}"
             )
         meta = getattr(policy, "meta", None) or {}
+        self.mirror_to = mirror.resolve_mirror_to(mirror_to, mirror.trained_mirror_to(meta.get("env_config")))
         for key, spec in (("obs_spec", self.obs_spec), ("action_spec", self.action_spec)):
             if key in meta and obs_spec.Spec.from_json(meta[key]) != spec:
                 raise ValueError(
@@ -218,7 +219,7 @@ class Supervisor:
     """Walking, fall detection, get-up and back (see the module's docstring). Not thread-safe; one
     per robot. walking: a DeployLoop; getup_policy: a loaded get-up policy (or a GetupPolicy);
     rest_motor (12,) [rad]: the pose of resting (default the walking loop's home stance);
-    getup_mirror_to: GetupPolicy's mirror_to for a loaded get-up policy."""
+    getup_mirror_to: GetupPolicy's mirror_to for a loaded get-up policy (default: as trained)."""
 
     def __init__(
         self,
@@ -226,7 +227,7 @@ class Supervisor:
         getup_policy,
         config: SupervisorConfig | None = None,
         rest_motor=None,
-        getup_mirror_to: str | None = None,
+        getup_mirror_to: str | None = mirror.TRAINED,
     ):
         self.walking = walking
         self.cfg = config if config is not None else SupervisorConfig()

@@ -61,6 +61,14 @@ GETUP = {
     # constants.MOTOR_VELOCITY_LIMIT, 31.4 rad/s, none at twice it, as sim2sim's servo model);
     # without it the trained policies drove motors to 62-80 rad/s. Not yet in a trained run
     "servo_speed_limit": False,
+    # train on one side only (robots.quadson.mirror): "left" runs every episode whose start has the
+    # body's right side lower on the robot's mirror image (the actor's observation mirrored in, its
+    # action mirrored out), so that the policy meets every side fall as a left one and gets twice
+    # the practice of it; "right" the other way; "none" never. The side is taken as the deploy
+    # loop's get-up policy takes it (deploy_supervisor.GetupPolicy): from the gravity direction the
+    # IMU reads at the start (a knock-over: the side it tips toward). A policy trained so runs with
+    # the same mirror_to wherever it runs (the export carries it)
+    "mirror_to": "none",
     **SUCCESS,
     "upright_gate_rad": math.radians(30.0),  # height and pose terms fade in from this tilt to 0
     "height_sigma_m": 0.03,
@@ -71,6 +79,7 @@ GETUP = {
 TOPPLE_PROB = 0.5  # getup.topple_prob of the get-up task (env_config(task="getup"))
 
 TASKS = ("locomotion", "getup")
+MIRROR_TO = ("none", "left", "right")  # env.getup.mirror_to; "none" is mirror.MIRROR_TO's None
 
 _M, _S, _RAD = "m", "s", "rad"
 GETUP_RULES: dict[str, Rule] = {
@@ -80,6 +89,7 @@ GETUP_RULES: dict[str, Rule] = {
     "getup.topple_prob": Rule("number", 0.0, 1.0, "(a probability)"),
     "getup.topple_rate_rps": Rule("pair", 0.0, 50.0, "rad/s"),
     "getup.servo_speed_limit": Rule("bool"),
+    "getup.mirror_to": Rule("name"),
     "getup.success_tilt_rad": Rule("number", 0.0, math.pi / 2, _RAD, lo_open=True),
     "getup.success_height_m": Rule("number", 0.0, 0.5, _M, lo_open=True),
     "getup.success_hold_s": Rule("number", 0.0, 60.0, _S),
@@ -96,6 +106,8 @@ def check_getup_config(cfg) -> None:
     task = cfg.get("task", "locomotion")
     if task not in TASKS:
         raise ValueError(f"env.task is {task!r}; choose from {list(TASKS)}")
+    if cfg.getup.mirror_to not in MIRROR_TO:
+        raise ValueError(f"env.getup.mirror_to is {cfg.getup.mirror_to!r}; choose from {list(MIRROR_TO)}")
     if task != "getup":
         return
     if cfg.robot != "quadson":

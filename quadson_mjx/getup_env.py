@@ -34,6 +34,12 @@ and wrappers with its own reset, action, reward and success measure:
   metrics["success"] is 1 on the step the hold completes (an episode's sum: 1 or 0),
   metrics["time_to_stand"] the time the hold began [s] on that step; info["success_s"] keeps it
   (-1 until then) and info["start_class"] the start's class (getup_start.CLASSES).
+* mirroring (env.getup.mirror_to "left" or "right"): an episode whose start has the other side
+  lower runs on the robot's mirror image: the actor's observation is mirrored in and its action
+  mirrored out (robots.quadson.mirror), as deploy_supervisor.GetupPolicy does on the robot; the
+  side is decided once, at reset, from the gravity direction the IMU reads (a knock-over: the side
+  it tips toward) and kept in info["mirrored"]. The critic's observation, the reward, the metrics
+  and info["last_action"] stay the real robot's.
 * episodes: 6 s (the 5 s and the 1 s hold); no termination but a non-finite or exploded state
   (metrics["nan_reset"], as LocomotionEnv).
 """
@@ -52,6 +58,7 @@ from quadson_mjx.env_model import motoring_forcerange, name_ids
 from quadson_mjx.quat import quat_rotate_inverse
 from quadson_mjx.robots.quadson import chain_guard, getup_start
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson.mirror import mirror_getup_observation, mirror_motors, wants_mirror
 
 FIELD_MARGIN_M = 1.0  # a drop on the stone field lands at least this far inside its edge
 SPAWN_RADIUS_M = 0.3  # ... above the highest ground within this radius (the robot is 0.34 m long)
@@ -96,6 +103,7 @@ class GetupEnv(LocomotionEnv):
         )
         self._success_hold_s = float(g.success_hold_s)
         self._success_within_s = float(g.success_within_s)
+        self._mirror_to = None if g.mirror_to == "none" else g.mirror_to
 
     @property
     def stand_height(self) -> float:
@@ -104,7 +112,12 @@ class GetupEnv(LocomotionEnv):
 
     @property
     def restart_info(self) -> tuple[str, ...]:
-        return self.RESTART_INFO
+        return self.RESTART_INFO + (("mirrored",) if self._mirror_to else ())
+
+    def _mirrored_obs(self, obs, mirrored):
+        """The actor's observation mirrored where mirrored (); the critic's left as it is."""
+        state = jnp.where(mirrored, mirror_getup_observation(obs["state"]), obs["state"])
+        return {**obs, "state": state}
 
     # --- reset -------------------------------------------------------------------------------------
     def _topple(self, key, standing):
@@ -162,6 +175,12 @@ class GetupEnv(LocomotionEnv):
         metrics = {f"reward/{k}": jnp.zeros(()) for k in self._config.getup.weights}
         metrics.update({k: jnp.zeros(()) for k in self.STEP_METRICS})
         obs = self._observe(data, info, (data.qpos, data.qvel), jnp.zeros(4, bool))
+        if self._mirror_to:  # static
+            # the side that is lower: the IMU's gravity y now; a knock-over's: where it tips (the
+            # base's y velocity, heading 0), which the IMU reads once it has tipped
+            side_y = jnp.where(toppled, qvel[1], obs["state"][1])
+            info["mirrored"] = wants_mirror(side_y, self._mirror_to)
+            obs = self._mirrored_obs(obs, info["mirrored"])
         return State(data, obs, jnp.zeros(()), jnp.zeros(()), metrics, info)
 
     # --- step --------------------------------------------------------------------------------------
@@ -174,6 +193,8 @@ class GetupEnv(LocomotionEnv):
         cfg = self._config
         info = dict(state.info)
         action = jnp.clip(action, -1.0, 1.0)
+        if self._mirror_to:  # static: the policy acted on the mirror image; the robot's action
+            action = jnp.where(info["mirrored"], mirror_motors(action), action)
         angles, guarded = self.motor_targets(action)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles)
 
@@ -239,6 +260,8 @@ class GetupEnv(LocomotionEnv):
         info["last_ctrl"] = ctrl
         info["rng"] = jax.random.split(info["rng"])[0]  # fresh sensor noise every step
         obs = self._observe(data, info, sensed, self.foot_contact(data))
+        if self._mirror_to:
+            obs = self._mirrored_obs(obs, info["mirrored"])
         obs = jax.tree.map(lambda o: jnp.where(sane, o, 0.0), obs)
         reward = jnp.where(sane, reward, 0.0)
 

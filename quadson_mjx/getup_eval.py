@@ -19,7 +19,14 @@ from quadson_mjx.config import apply_overrides
 from quadson_mjx.env_config import with_added_keys
 from quadson_mjx.getup_env import TOPPLED_CLASS, GetupEnv
 from quadson_mjx.robots.quadson.getup_start import CLASSES
-from quadson_mjx.robots.quadson.mirror import mirror_getup_observation, mirror_motors, wants_mirror
+from quadson_mjx.robots.quadson.mirror import (
+    TRAINED,
+    mirror_getup_observation,
+    mirror_motors,
+    resolve_mirror_to,
+    trained_mirror_to,
+    wants_mirror,
+)
 from quadson_mjx.wrappers import wrap_for_evaluation
 
 GROUNDS = {"flat": "flat", "stones": "rough"}  # the evaluation's word -> env.terrain
@@ -66,7 +73,7 @@ def evaluate_getup(
     drops: int = 512,
     seed: int = 0,
     starts: str = "drops",
-    mirror_to: str | None = None,
+    mirror_to: str | None = TRAINED,
 ):
     """policy(obs, key) -> (action, extras) (training.load_policy) of a get-up run whose env config
     is env_cfg, over `drops` starts on `ground` -> (rows: one per start class of getup_start.CLASSES
@@ -76,10 +83,15 @@ def evaluate_getup(
     knock-overs from the home stance instead of drops, one row "toppled". mirror_to "left" runs the
     policy mirrored in every episode that starts with the body's right side lower (gravity's body y
     below 0), so that it always meets the left side's fall ("right": the other way round), as
-    deploy_supervisor.GetupPolicy(mirror_to=...) does at the start of an attempt."""
+    deploy_supervisor.GetupPolicy(mirror_to=...) does at the start of an attempt. A run trained
+    mirrored (env.getup.mirror_to) is evaluated on the side it trained on, by the environment itself
+    (mirror_to TRAINED or that side; another: ValueError, mirror.resolve_mirror_to)."""
     if drops < 1:
         raise ValueError(f"get-up evaluation: drops {drops}: need at least 1")
-    wants_mirror(0.0, mirror_to)  # a bad mirror_to: ValueError before compiling
+    trained = trained_mirror_to(env_cfg)
+    mirror_to = resolve_mirror_to(mirror_to, trained)  # a bad mirror_to: ValueError before compiling
+    if trained is not None:
+        mirror_to = None  # the environment mirrors, as in training
     cfg = getup_env_config(env_cfg, ground, starts)
     env = GetupEnv(cfg)
     n_steps = env.episode_length

@@ -37,6 +37,7 @@ from quadson_mjx import sim2sim_plant as P
 from quadson_mjx.deploy_supervisor import Mode, Supervisor, tilt
 from quadson_mjx.quat import quat_rotate
 from quadson_mjx.robots import get_robot
+from quadson_mjx.robots.quadson.mirror import TRAINED
 
 FORWARD_COMMAND = (0.25, 0.0, 0.0)  # vx [m/s], vy [m/s], yaw rate [rad/s] while walking
 KICK_SPEED_MPS = (0.2, 0.6)  # horizontal base speed added by the kick, uniform [m/s]
@@ -158,7 +159,7 @@ def build(
     sensors: bool = True,
     pushes: bool = False,
     supervisor=None,
-    mirror_to: str | None = None,
+    mirror_to: str | None = TRAINED,
 ):
     """Loads the two policies -> (Supervisor over a DeployLoop of walk_file, Plant of sim2sim on
     `terrain` with the walking policy's randomization ranges (and its pushes, when asked), the
@@ -353,7 +354,7 @@ def run_knockdowns(
     video=None,
     pushes: bool = False,
     supervisor=None,
-    mirror_to: str | None = None,
+    mirror_to: str | None = TRAINED,
 ) -> tuple[dict, list[dict]]:
     """n knock-downs (the module's docstring): trials first .. first + n - 1, trial i seeded by
     (seed, i) alone, so one trial of a run can be replayed by itself. record / video: None or an .mcap

@@ -21,7 +21,6 @@ from quadson_mjx.env_config import env_config
 from quadson_mjx.quat import quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.wrappers import wrap_for_training
 
-
 TERMINATION = -10.0
 
 

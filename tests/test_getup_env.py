@@ -22,6 +22,7 @@ from quadson_mjx.env_config import env_config
 from quadson_mjx.getup_env import STANDING_CLASS, TOPPLED_CLASS, GetupEnv
 from quadson_mjx.robots.quadson import chain_guard, fivebar, getup_start
 from quadson_mjx.robots.quadson import constants as C
+from quadson_mjx.robots.quadson.mirror import mirror_getup_observation, mirror_motors
 
 ROOT = Path(__file__).resolve().parents[1]
 N = 32  # environments of the compiled batch
@@ -205,6 +206,43 @@ def test_actor_sees_the_robots_sensors_and_the_critic_more(getup):
     critic_names = set(env.critic_spec.names)
     assert actor_names < critic_names
     assert not {n for n in critic_names - actor_names if not n.startswith(("true_", "base_height", "foot_", "ground_", "physics", "sensor_model"))}  # fmt: skip
+
+
+def test_training_on_one_side_is_the_mirror_image_of_the_plain_task(getup):
+    """env.getup.mirror_to=left against the same task without it, from the same keys: the same
+    starts; where the right side is lower at the start (a drop: the IMU's gravity y < 0; a
+    knock-over: tipping toward -y) the actor sees the mirrored observation and its action reaches
+    the robot mirrored; elsewhere, and for the critic, reward and physics, nothing changes."""
+    env, reset, step = getup
+    one_side = GetupEnv(apply_overrides(env.config, ["getup.mirror_to=left"], prefix="env."))
+    assert "mirrored" in one_side.restart_info and "mirrored" not in env.restart_info
+    l_reset, l_step = jax.jit(jax.vmap(one_side.reset)), jax.jit(jax.vmap(one_side.step))
+    keys = jax.random.split(jax.random.key(21), N)
+    s, sl = reset(keys), l_reset(keys)
+    np.testing.assert_array_equal(sl.pipeline_state.qpos, s.pipeline_state.qpos)
+    m = np.asarray(sl.info["mirrored"])
+    toppled = np.asarray(s.info["start_class"]) == TOPPLED_CLASS
+    lower_right = np.where(
+        toppled, np.asarray(s.pipeline_state.qvel[:, 1]) < 0, np.asarray(s.obs["state"][:, 1]) < 0
+    )
+    np.testing.assert_array_equal(m, lower_right)
+    assert 0 < m.sum() < N and (m & toppled).any() and (~m & toppled).any()  # every case occurs
+
+    def seen(plain_obs):  # what the one-sided env's actor must see of the plain env's observation
+        o = np.asarray(plain_obs)
+        return np.where(m[:, None], mirror_getup_observation(o), o)
+
+    np.testing.assert_array_equal(np.asarray(sl.obs["state"]), seen(s.obs["state"]))
+    np.testing.assert_array_equal(sl.obs["privileged_state"], s.obs["privileged_state"])
+    a = jax.random.uniform(jax.random.key(3), (N, 12), minval=-1.0, maxval=1.0)
+    for _ in range(3):
+        s = step(s, jnp.where(m[:, None], mirror_motors(a), a))  # the plain env given the robot's action
+        sl = l_step(sl, a)
+    np.testing.assert_allclose(sl.pipeline_state.qpos, s.pipeline_state.qpos, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(sl.obs["state"]), seen(s.obs["state"]), atol=1e-6)
+    np.testing.assert_allclose(sl.obs["privileged_state"], s.obs["privileged_state"], atol=1e-6)
+    np.testing.assert_allclose(sl.reward, s.reward, atol=1e-6)
+    np.testing.assert_array_equal(sl.info["mirrored"], m)
 
 
 def test_env_and_supervisor_build_one_observation():

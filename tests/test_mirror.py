@@ -174,6 +174,36 @@ def test_getup_policy_mirrors_an_attempt_decided_on_its_first_tick():
         GetupPolicy(rec, kin, 0.02, mirror_to="up")
 
 
+def test_a_policy_trained_on_one_side_runs_on_that_side():
+    """A get-up file whose env config says getup.mirror_to "left" runs mirrored to the left by
+    default (mirror.TRAINED) and refuses to run on both sides or the right; a file trained on both
+    sides runs as asked; the command lines' words parse to those values."""
+    from quadson_mjx.deploy_supervisor import GetupPolicy
+
+    kin = deploy_robots.quadson(json.loads(to_json(env_config())))
+    left = _Recorder(np.zeros(12))
+    left.meta = {"env_config": {"getup": {"mirror_to": "left"}}}
+    assert GetupPolicy(left, kin, 0.02).mirror_to == "left"
+    assert GetupPolicy(left, kin, 0.02, mirror_to="left").mirror_to == "left"
+    for other in (None, "right"):
+        with pytest.raises(ValueError, match="trained mirrored to the left"):
+            GetupPolicy(left, kin, 0.02, mirror_to=other)
+    both = _Recorder(np.zeros(12))
+    both.meta = {"env_config": {"getup": {"mirror_to": "none"}}}
+    assert GetupPolicy(both, kin, 0.02).mirror_to is None
+    assert GetupPolicy(both, kin, 0.02, mirror_to="right").mirror_to == "right"
+    assert GetupPolicy(_Recorder(np.zeros(12)), kin, 0.02).mirror_to is None  # no meta: both sides
+    assert M.trained_mirror_to(env_config(task="getup")) is None  # the ConfigDict of a run
+    assert [M.parse_mirror_to(w) for w in ("trained", "none", "left", "right")] == [
+        M.TRAINED,
+        None,
+        "left",
+        "right",
+    ]
+    with pytest.raises(ValueError, match="--mirror-to up: choose from trained, none, left, right"):
+        M.parse_mirror_to("up")
+
+
 def test_evaluation_mirrors_the_chosen_rows_in_jax():
     """getup_eval.mirrored_policy under jit: rows whose first gravity y is below 0 (mirror_to
     "left") give the policy the mirrored actor observation and return its mirrored action; the

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from quadson_mjx.errors import UsageError, check_run_dir, check_writable, one_line_errors, write_text_atomic
+from quadson_mjx.robots.quadson.mirror import parse_mirror_to, resolve_mirror_to, trained_mirror_to
 
 GROUND_NAMES = ("flat", "stones")
 
@@ -33,8 +34,9 @@ def parse(argv):
     )
     p.add_argument(
         "--mirror-to",
-        default="none",
-        help="left or right: run the policy mirrored where a start has the other side lower (none)",
+        default="trained",
+        help="left or right: run the policy mirrored where a start has the other side lower; none; "
+        "trained (default): as the run was trained (env.getup.mirror_to)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
@@ -59,9 +61,10 @@ def main(argv=None) -> int:
         raise UsageError(f"--ground {' '.join(bad)}: choose from {', '.join(GROUND_NAMES)}")
     if args.drops < 1:
         raise UsageError(f"--drops {args.drops}: need at least 1")
-    if args.mirror_to not in ("none", "left", "right"):
-        raise UsageError(f"--mirror-to {args.mirror_to}: choose from none, left, right")
-    mirror_to = None if args.mirror_to == "none" else args.mirror_to
+    try:
+        mirror_to = parse_mirror_to(args.mirror_to)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     if args.topples < 0:
         raise UsageError(f"--topples {args.topples}: 0 or more")
     if args.json:
@@ -73,6 +76,10 @@ def main(argv=None) -> int:
         raise UsageError(
             f"--run {args.run}: trained env.task={env_cfg.get('task', 'locomotion')!r}, not getup"
         )
+    try:
+        resolve_mirror_to(mirror_to, trained_mirror_to(env_cfg))
+    except ValueError as e:
+        raise UsageError(f"--run {args.run}: {e}") from None
     from quadson_mjx.getup_eval import evaluate_getup
 
     policy, env_cfg, _, _ = load_policy(Path(args.run))

@@ -37,6 +37,7 @@ from quadson_mjx.errors import (
     one_line_errors,
     write_text_atomic,
 )
+from quadson_mjx.robots.quadson.mirror import parse_mirror_to
 
 TERRAINS = ("flat", "stones")
 KNOCKS = ("kick", "shove", "none")  # quadson_mjx.knockdown.KNOCKS, without importing mujoco for --help
@@ -65,8 +66,9 @@ def parse(argv):
     )
     p.add_argument(
         "--mirror-to",
-        default="none",
-        help="left or right: the get-up policy runs mirrored when the other side is lower (none)",
+        default="trained",
+        help="left or right: the get-up policy runs mirrored when the other side is lower; none; "
+        "trained (default): as the policy was trained (env.getup.mirror_to)",
     )
     p.add_argument(
         "--supervisor",
@@ -99,9 +101,10 @@ def parse(argv):
                     f"--{flag} {path}: a policy file is *.onnx or *.npz, or give a run directory"
                 )
     a.supervisor_config = supervisor_config(a.supervisor)
-    if a.mirror_to not in ("none", "left", "right"):
-        raise UsageError(f"--mirror-to {a.mirror_to}: choose from none, left, right")
-    a.mirror_to = None if a.mirror_to == "none" else a.mirror_to
+    try:
+        a.mirror_to = parse_mirror_to(a.mirror_to)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     if a.json:
         check_writable(a.json, "--json")
     if a.mcap:

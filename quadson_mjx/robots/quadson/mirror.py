@@ -32,6 +32,7 @@ OBS_SIZE = len(_OBS_INDEX)  # 30
 
 
 MIRROR_TO = (None, "left", "right")
+TRAINED = "trained"  # a mirror_to argument: the side the policy was trained on (resolve_mirror_to)
 
 
 def wants_mirror(gravity_y, mirror_to: str | None):
@@ -46,6 +47,38 @@ def wants_mirror(gravity_y, mirror_to: str | None):
     if mirror_to == "right":
         return gravity_y > 0
     return (gravity_y < 0) & False  # never, in gravity_y's shape and array kind
+
+
+def parse_mirror_to(text: str):
+    """A command line's --mirror-to: "trained" (TRAINED), "none" (None), "left" or "right";
+    ValueError for anything else."""
+    choices = {TRAINED: TRAINED, "none": None, "left": "left", "right": "right"}
+    if text not in choices:
+        raise ValueError(f"--mirror-to {text}: choose from {', '.join(choices)}")
+    return choices[text]
+
+
+def trained_mirror_to(env_config) -> str | None:
+    """The mirror_to a get-up policy was trained with: env.getup.mirror_to of its env config (a
+    ConfigDict or the plain dict an export's meta carries); None for "none" or a config without it."""
+    getup = env_config.get("getup", None) if env_config is not None else None
+    side = getup.get("mirror_to", "none") if getup is not None else "none"
+    return None if side == "none" else side
+
+
+def resolve_mirror_to(requested, trained: str | None) -> str | None:
+    """The mirror_to to run a policy trained with `trained` (trained_mirror_to) under: TRAINED gives
+    the trained side; another value is taken as asked, unless the policy was trained on one side
+    and the request differs, which would show it the other side's falls it never met: ValueError."""
+    if requested == TRAINED:
+        return trained
+    wants_mirror(0.0, requested)  # a bad value: ValueError
+    if trained is not None and requested != trained:
+        raise ValueError(
+            f"the get-up policy was trained mirrored to the {trained} (env.getup.mirror_to); "
+            f"it runs with mirror_to {trained!r}, not {requested!r}"
+        )
+    return requested
 
 
 def mirror_motors(x):
