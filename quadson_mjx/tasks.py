@@ -8,7 +8,7 @@ A task is one point of the training script's flags (robot x env preset x terrain
 recipes), built by `config_from_flags`, the one function that turns those flags into an env config:
 `quadson-train --task NAME` and the flag spelling give identical configs (tests/test_tasks.py).
 Names: <Robot>[Command|Joystick]<Terrain> for the env presets seed, command and robust, and
-Quadson<Gait><Name> for the gait recipes (env_config.GAIT_RECIPES, seed preset, flat ground, as the
+Quadson<Gait><Name> for the gait recipes (env_recipes.GAIT_RECIPES, seed preset, flat ground, as the
 committed results/gaits runs were trained).
 """
 
@@ -21,7 +21,8 @@ from collections.abc import Callable
 
 import ml_collections
 
-from quadson_mjx.env_config import GAIT_RECIPES, check_env_config, env_config, with_added_keys
+from quadson_mjx.env_config import check_env_config, env_config, with_added_keys
+from quadson_mjx.env_recipes import GAIT_RECIPES
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS
 
 # Training physics of every preset: feet-only ground contact and no joint-limit rows (the episode
@@ -73,7 +74,7 @@ def config_from_flags(
 ) -> ml_collections.ConfigDict:
     """The env config of the training script's flags (--robot, --env-preset, --terrain, --gait,
     --gait-action), locked and checked (env_config.check_env_config). `gait` trains that gait with
-    its recipe (env_config.GAIT_RECIPES). Raises ValueError for an unknown preset, terrain, robot or
+    its recipe (env_recipes.GAIT_RECIPES). Raises ValueError for an unknown preset, terrain, robot or
     gait, a gait without a recipe, or gait_action for a robot whose gait cannot be scaled."""
     if env_preset not in ENV_PRESETS:
         raise ValueError(f"unknown env preset {env_preset!r}; choose from {sorted(ENV_PRESETS)}")

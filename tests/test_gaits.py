@@ -21,12 +21,12 @@ from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import (
-    GAIT_RECIPES,
     check_env_config,
     env_config,
     env_gait,
     with_added_keys,
 )
+from quadson_mjx.env_recipes import GAIT_RECIPES
 from quadson_mjx.robots.quadson import constants as C
 from quadson_mjx.robots.quadson import gait, gait_np
 

@@ -31,7 +31,8 @@ from quadson_mjx import errors, gait_eval
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
-from quadson_mjx.env_config import GAIT_RECIPES, SEED_EPISODE_S, env_config, with_added_keys
+from quadson_mjx.env_config import SEED_EPISODE_S, env_config, with_added_keys
+from quadson_mjx.env_recipes import GAIT_RECIPES
 from quadson_mjx.errors import UsageError
 from quadson_mjx.tasks import FAST_PHYSICS
 

@@ -13,7 +13,7 @@
 (`python train/ppo_mjx.py ...` runs the same command.) A task (quadson_mjx.tasks) names a robot, an
 env preset, a terrain and a gait recipe; the flags --robot, --env-preset seed|command|robust (seed
 000's formulation; + velocity commands; the joystick recipe with domain randomization and pushes),
---terrain and --gait G (seed 000's gait G with its recipe, env_config.GAIT_RECIPES: the gait's speed
+--terrain and --gait G (seed 000's gait G with its recipe, env_recipes.GAIT_RECIPES: the gait's speed
 as target, the contact-pattern reward, domain randomization) spell the same configs. Any config key
 can be overridden with --env.KEY=VALUE or --ppo.KEY=VALUE; an unknown key is an error naming it.
 
@@ -35,7 +35,8 @@ import jax
 
 from quadson_mjx import tasks, training
 from quadson_mjx.config import apply_overrides
-from quadson_mjx.env_config import ENV_TERRAINS, GAIT_RECIPES, check_env_config
+from quadson_mjx.env_config import ENV_TERRAINS, check_env_config
+from quadson_mjx.env_recipes import GAIT_RECIPES
 from quadson_mjx.errors import ArgumentParser, UsageError, one_line_errors
 from quadson_mjx.robots import ROBOT_NAMES
 from quadson_mjx.training.guards import check_backend
