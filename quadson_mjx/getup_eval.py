@@ -11,6 +11,8 @@ acts with its mean action, as deployed. One episode per drop, 6 s.
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -29,6 +31,7 @@ from quadson_mjx.robots.quadson.mirror import (
 )
 from quadson_mjx.wrappers import wrap_for_evaluation
 
+ON_BACK_TILT_RAD = math.radians(150.0)  # an episode that ends tilted further lies on its back
 GROUNDS = {"flat": "flat", "stones": "rough"}  # the evaluation's word -> env.terrain
 
 
@@ -115,11 +118,12 @@ def evaluate_getup(
                 "guarded_steps": acc["guarded_steps"] + (m["chain_guarded_legs"] > 0),
                 "max_motor_speed": jnp.maximum(acc["max_motor_speed"], m["max_motor_speed"]),
                 "nan_reset": acc["nan_reset"] + m["nan_reset"],
+                "final_tilt": m["tilt"],  # the last step's, after the scan
             }
             return (s, acc), None
 
         zeros = jnp.zeros(drops)
-        acc = {k: zeros for k in ("success", "time_to_stand", "overlap_steps", "guarded_steps", "max_motor_speed", "nan_reset")}  # fmt: skip
+        acc = {k: zeros for k in ("success", "time_to_stand", "overlap_steps", "guarded_steps", "max_motor_speed", "nan_reset", "final_tilt")}  # fmt: skip
         (_, acc), _ = jax.lax.scan(one, (state, acc), jax.random.split(k_run, n_steps))
         return acc, state.info["start_class"], state.info["start_valid"]
 
@@ -140,6 +144,9 @@ def evaluate_getup(
             "overlap_step_share": float(acc["overlap_steps"][i].sum() / (n_steps * max(i.sum(), 1))),
             "guarded_step_share": float(acc["guarded_steps"][i].sum() / (n_steps * max(i.sum(), 1))),
             "max_motor_speed_rps": float(acc["max_motor_speed"][i].max()) if i.any() else float("nan"),
+            # failures that end the episode on the back (tilt above ON_BACK_TILT_RAD), where the
+            # legs cannot turn the robot over (robots/quadson/getup_reach.py)
+            "failures_on_back": int((i & ~success & (acc["final_tilt"] > ON_BACK_TILT_RAD)).sum()),
         }
 
     if starts == "topples":

@@ -301,6 +301,8 @@ def test_committed_policy_evaluates_on_the_cpu():
     assert [r["start_class"] for r in rows] == list(getup_start.CLASSES)
     assert sum(r["drops"] for r in rows) == total["drops"] == 4
     assert total["non_finite_resets"] == 0 and 0 <= total["successes"] <= 4
+    assert 0 <= total["failures_on_back"] <= 4 - total["successes"]
+    assert total["failures_on_back"] == sum(r["failures_on_back"] for r in rows)
     saved = json.loads((ROOT / "results/getup_h100/eval_gpu.json").read_text())
     assert set(saved["grounds"]) == {"flat", "stones"}
 

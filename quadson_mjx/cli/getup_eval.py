@@ -7,8 +7,9 @@ Each drop is a fresh start (on the back, a side, the belly, or tilted; motor ang
 real limits; 0.2-0.5 m up) on its own randomized model. Success: upright within 10 deg and the base
 within 2 cm of the standing height, held 1 s, begun within 5 s of the drop. Prints one row per
 start class and ground; --topples N adds N knock-overs from the home stance (a tipping rate about
-a random horizontal axis, the run's env.getup.topple_rate_rps) as a row "toppled". --json writes
-them with the command line.
+a random horizontal axis, the run's env.getup.topple_rate_rps) as a row "toppled". The column
+on_back counts the failures that end the episode on the back (tilted over 150 deg), the start the
+legs cannot turn over. --json writes them with the command line.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ def _line(name: str, r: dict) -> str:
         f"{name:12s} {r['successes']:5d}/{r['drops']:<5d} {100 * r['success']:6.1f}%"
         f" {r['time_to_stand_median_s']:6.2f} {r['time_to_stand_p90_s']:6.2f}"
         f" {100 * r['overlap_step_share']:7.2f}% {100 * r['guarded_step_share']:7.2f}% {r['max_motor_speed_rps']:6.1f}"
+        f" {r['failures_on_back']:7d}"
     )
 
 
@@ -89,7 +91,7 @@ def main(argv=None) -> int:
         out["grounds"][ground] = {"classes": rows, "total": total}
         print(f"\n{ground}: {args.drops} drops, seed {args.seed}")
         print(
-            f"{'start':12s} {'stood':>11s} {'share':>7s} {'t_med':>6s} {'t_p90':>6s} {'overlap':>8s} {'guarded':>8s} {'w_max':>6s}"
+            f"{'start':12s} {'stood':>11s} {'share':>7s} {'t_med':>6s} {'t_p90':>6s} {'overlap':>8s} {'guarded':>8s} {'w_max':>6s} {'on_back':>7s}"
         )
         for r in rows:
             print(_line(r["start_class"], r))
