@@ -65,11 +65,23 @@ COMMITTED_RUNS = {
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
+    # trained on one side
+    "results/getup_mirror_h100": ("QuadsonGetupFlat", ["getup.mirror_to=left"]),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     "results/gaits/pace": ("QuadsonGaitPace", []),
     "results/gaits/bound": ("QuadsonGaitBound", []),
     "results/gaits/gallop": ("QuadsonGaitGallop", []),
+    # trials of a fall penalty (not kept as the gaits' policies)
+    "results/gaits/trials_termination/t_pace": ("QuadsonGaitPace", ["reward.weights.termination=-100"]),
+    "results/gaits/trials_termination/ts_bound": (
+        "QuadsonGaitBound",
+        ["reward.weights.termination=-100", "reward.forward_sigma=0.15"],
+    ),
+    "results/gaits/trials_termination/t3s_bound": (
+        "QuadsonGaitBound",
+        ["reward.weights.termination=-300", "reward.forward_sigma=0.15"],
+    ),
     # trained with --robot caramel --env-preset command --terrain rough --env.randomize=true
     "results/caramel/policy": ("CaramelCommandRough", ["randomize=true"]),
     # trained before the training physics (FAST_PHYSICS): the base box touched the ground and the
