@@ -430,6 +430,10 @@ def gaits_cli():
         (["--controllers", "gait,mpc"], ["--controllers"]),
         (["--footfalls", "2", "1"], ["--footfalls"]),
         (["--seconds", "3", "--footfalls", "1", "4"], ["--footfalls"]),
+        (["--randomization", "mass=1,1"], ["--randomization", "env.randomization.mass", "mass_scale"]),
+        (["--randomization", "mass_scale=1.2"], ["--randomization", "takes 2 values"]),
+        (["--randomization", "friction=1.2,0.5"], ["--randomization", "env.randomization.friction"]),
+        (["--randomization", "mass_scale"], ["--randomization"]),
     ],
 )
 def test_gaits_cli_usage_errors_exit_2(gaits_cli, capsys, tmp_path, args, words):

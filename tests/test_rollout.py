@@ -451,3 +451,34 @@ def test_randomized_step_and_per_env_commands():
         next(
             R.run(LocomotionEnv(env_config()), R.gait_only(env), jax.random.PRNGKey(0), 2, 4, randomize=True)
         )
+
+
+def test_pid_reads_roll_and_pitch_from_either_observation():
+    """The PID's measured roll and pitch: seed 000's base_rpy entries as they are, and for the
+    sensor-only observation (a gait recipe's dictionary observation) the ZYX roll and pitch of the
+    IMU's gravity direction, against MuJoCo's own quaternion of known roll, pitch and yaw."""
+    from quadson_mjx import obs_spec
+    from quadson_mjx.sensors import gravity_direction
+
+    recipe_env = LocomotionEnv(env_config(gait="bound", gait_recipe=True))
+    sensor_spec = recipe_env.obs_spec
+    read = jax.jit(R.observed_roll_pitch(sensor_spec))
+    k = sensor_spec.names.index("gravity.x")
+    for roll, pitch, yaw in [(0.3, -0.2, 1.0), (-1.2, 0.4, -2.5), (0.0, 1.3, 0.2), (2.8, 0.1, 0.0)]:
+        quat = np.zeros(4)
+        mujoco.mju_euler2Quat(quat, np.array([roll, pitch, yaw]), "XYZ")  # intrinsic x, y, z = ZYX
+        state = jnp.zeros(sensor_spec.size).at[k : k + 3].set(gravity_direction(jnp.asarray(quat)))
+        got = read({"state": state, "privileged_state": jnp.zeros(5)})
+        np.testing.assert_allclose(got, [roll, pitch], atol=1e-5)
+    # regression: quadson-gaits' pid row on a gait recipe indexed the dictionary observation
+    ctrl = R.pid_stabilizer(recipe_env)
+    info = {"gait_progress": jnp.asarray(0.3), "command": jnp.zeros(3), "episode_time": jnp.asarray(1.0)}
+    obs = {"state": state, "privileged_state": jnp.zeros(5)}
+    act = jax.jit(lambda carry, obs, info: ctrl.act(carry, types.SimpleNamespace(obs=obs, info=info), None))
+    carry, action = act(ctrl.init(), obs, info)
+    np.testing.assert_allclose(carry.prev_error, [-roll, -pitch], atol=1e-5)  # the last case's
+    assert action.shape == (recipe_env.action_size,) and bool(jnp.all(jnp.isfinite(action)))
+    true_state = R.observed_roll_pitch(obs_spec.locomotion_observation(C.LEGS, C.MOTOR_JOINTS, False))
+    np.testing.assert_allclose(true_state(jnp.arange(29.0)), [0.0, 1.0])
+    with pytest.raises(ValueError, match="neither base_rpy nor gravity"):
+        R.observed_roll_pitch(obs_spec.getup_action(C.MOTOR_JOINTS))

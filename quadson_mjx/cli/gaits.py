@@ -11,8 +11,11 @@ episode (friction, masses, servo strength, latency, centre of mass), in the gait
 (env_config(gait=G, gait_recipe=True) with the training's feet-only contact; a run's own config for
 its policy). Reported per row (quadson_mjx.gait_eval): falls, mean speed against the command,
 roll/pitch std, and how often the feet's contact (from contact forces) matches the gait's phase table.
+--randomization KEY=VALUE (repeatable) sets one range of the randomized model for every row
+(`randomization.KEY`: friction, mass_scale, motor_strength, base_com_shift_m, latency_s; a range
+LOW,HIGH, or one corner as VALUE,VALUE), to evaluate a policy on part of its training range.
 Prints a markdown table; --json writes every number (whole or not at all).
-A bad input (an unknown gait or controller, a non-finite or impossible time, an episode longer than
+A bad input (an unknown gait or controller, an unknown or out-of-range --randomization, a non-finite or impossible time, an episode longer than
 MAX_SECONDS, a --json path that exists or lies in a missing or read-only folder, a run in RUNS/<gait>
 that does not load or trained another gait) exits with status 2 and one line on stderr, before any
 episode runs.
@@ -31,7 +34,7 @@ from quadson_mjx import errors, gait_eval
 from quadson_mjx import rollout as R
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
-from quadson_mjx.env_config import SEED_EPISODE_S, env_config, with_added_keys
+from quadson_mjx.env_config import SEED_EPISODE_S, check_env_config, env_config, with_added_keys
 from quadson_mjx.env_recipes import GAIT_RECIPES
 from quadson_mjx.errors import UsageError
 from quadson_mjx.tasks import FAST_PHYSICS
@@ -52,6 +55,13 @@ def parse(argv):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None, help="write all results here")
     p.add_argument("--controllers", default="gait,pid,policy", help="comma-separated rows to run")
+    p.add_argument(
+        "--randomization",
+        action="append",
+        default=[],
+        metavar="KEY=LOW,HIGH",
+        help="a range of the randomized model for every row (randomization.KEY), repeatable",
+    )
     p.add_argument(
         "--footfalls",
         type=float,
@@ -81,6 +91,13 @@ def parse(argv):
         p.error(f"--json {args.json} exists; give a new path")
     if args.json:
         errors.check_writable(args.json, "--json")
+    args.randomization = [f"randomization.{r}" for r in args.randomization]
+    try:  # every override checked on the recipe's config before any run loads
+        check_env_config(
+            apply_overrides(env_config(gait=gaits[0], gait_recipe=True), args.randomization, prefix="env.")
+        )
+    except ValueError as e:
+        raise UsageError(f"--randomization: {errors.one_line(e)}") from None
     for g in gaits:
         check_run(run_of(args, g), g)
     return args, gaits
@@ -125,6 +142,8 @@ def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
             env_cfg = apply_overrides(env_cfg, ["command_tracking=false", "randomize=true"])
     else:
         env_cfg = env_config(gait=gait, gait_recipe=True, **TRAINING_PHYSICS)
+    if args.randomization:
+        env_cfg = apply_overrides(env_cfg, args.randomization, prefix="env.")
     env = LocomotionEnv(env_cfg)
     controllers = [c for c in (R.gait_only(env), R.pid_stabilizer(env)) if c.name in args.controllers]
     if policy is not None and "policy" in args.controllers:
@@ -180,6 +199,7 @@ def main(argv=None) -> int:
     print(markdown(rows))
     if args.json:
         meta = {"envs": args.envs, "seconds": args.seconds, "settle_s": args.settle_s, "seed": args.seed}
+        meta["randomization"] = [r[len("randomization.") :] for r in args.randomization]
         errors.write_text_atomic(args.json, json.dumps({"settings": meta, "rows": rows}, indent=2))
     return 0
 
