@@ -147,7 +147,10 @@ def test_cli_writes_json_and_an_mcap_of_the_first_trial(exported, tmp_path, caps
     assert res["summary"]["detected"] == sum(t["detected"] for t in res["trials"])
     assert res["summary"]["bad_target_ticks"] == 0 and res["settings"]["seconds_per_trial"] == 1.0
     assert res["settings"]["supervisor"]["fall_tilt_rad"] == pytest.approx(math.radians(25.0))
-    assert "success 0/2" in capsys.readouterr().out  # 1 s after the last kick cannot include 2 s walking
+    printed = capsys.readouterr().out
+    assert "success 0/2" in printed  # 1 s after the last kick cannot include 2 s walking
+    # --mirror-to trained (the default) recorded as the side it resolved to: this policy trained on both
+    assert res["settings"]["getup_mirror_to"] is None and "get-up mirrored to neither side" in printed
     steps = round(res["trials"][0]["sim_s"] / 0.02)
     report = mcap_check.check(str(mcap))
     assert report.complete and report.counts["/rollout/step"] == steps

@@ -187,12 +187,19 @@ def main(argv=None) -> int:
         walk = policy_file(a.walk, "walk", False, Path(tmp))
         getup = policy_file(a.getup, "getup", True, Path(tmp))
         try:
-            knockdown.build(walk, getup, a.terrain, supervisor=a.supervisor_config, mirror_to=a.mirror_to)
+            sup, _, _ = knockdown.build(
+                walk, getup, a.terrain, supervisor=a.supervisor_config, mirror_to=a.mirror_to
+            )
         except (ValueError, KeyError) as e:
             raise UsageError(f"--walk {a.walk} / --getup {a.getup}: the supervisor refuses them: {e}") from e
         origin = "the start" if a.knock == "none" else "the last knock"
         trials = f"{a.trials} trials from trial {a.first}" if a.first else f"{a.trials} trials"
-        print(f"{trials} ({a.knock}) on {a.terrain}, seed {a.seed}; times [s] from {origin}", flush=True)
+        side = sup.getup.mirror_to  # --mirror-to trained resolved: the side the get-up policy runs on
+        print(
+            f"{trials} ({a.knock}) on {a.terrain}, seed {a.seed}; get-up mirrored to {side or 'neither side'};"
+            f" times [s] from {origin}",
+            flush=True,
+        )
         summary, rows = knockdown.run_knockdowns(
             walk, getup, a.trials, a.seed, a.terrain, a.seconds, record=a.mcap,
             progress=lambda i, r: print(_line(r), flush=True), knock=a.knock, first=a.first,
@@ -213,7 +220,7 @@ def main(argv=None) -> int:
         out = {"command": "python eval/knockdown.py " + shlex.join(argv), "summary": s, "wall_s": wall}
         out |= {"settings": knockdown.settings(a.seconds, knock=a.knock, pushes=a.pushes), "trials": rows}
         out["settings"]["supervisor"] = dataclasses.asdict(a.supervisor_config)
-        out["settings"]["getup_mirror_to"] = a.mirror_to
+        out["settings"]["getup_mirror_to"] = side
         write_text_atomic(a.json, json.dumps(out, indent=1))
     return 0
 
