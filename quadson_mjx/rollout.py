@@ -71,27 +71,23 @@ def pid_action(gait_targets, u_roll_pitch, action_scale_m, tilt_feet=None):
 
 
 def observed_roll_pitch(obs_spec):
-    """-> f(obs) -> (2,) the body roll and pitch [rad] an actor's observation holds (the array, or
-    the "state" entry of a dictionary observation): seed 000's base_rpy entries, or for the sensor
-    observation the ZYX roll and pitch of the IMU's gravity direction g ((0, 0, -1) level; g =
-    (sin p, -sin r cos p, -cos r cos p)). ValueError for an observation with neither."""
+    """-> f(actor observation (size,)) -> (2,) the body roll and pitch [rad] it holds: seed 000's
+    base_rpy entries, or for the sensor observation the ZYX roll and pitch of the IMU's gravity
+    direction g ((0, 0, -1) level; g = (sin p, -sin r cos p, -cos r cos p)). ValueError for an
+    observation with neither."""
     names = obs_spec.names
     if "base_rpy.roll" in names:
         i, j = names.index("base_rpy.roll"), names.index("base_rpy.pitch")
-        return lambda obs: jnp.stack([_actor_obs(obs)[i], _actor_obs(obs)[j]])
+        return lambda obs: jnp.stack([obs[i], obs[j]])
     if "gravity.x" in names:
         k = names.index("gravity.x")
 
         def from_gravity(obs):
-            gx, gy, gz = (_actor_obs(obs)[k + n] for n in range(3))
+            gx, gy, gz = obs[k], obs[k + 1], obs[k + 2]
             return jnp.stack([jnp.arctan2(-gy, -gz), jnp.arctan2(gx, jnp.sqrt(gy * gy + gz * gz))])
 
         return from_gravity
     raise ValueError("the observation holds neither base_rpy nor gravity: no roll and pitch to stabilise")
-
-
-def _actor_obs(obs):
-    return obs["state"] if isinstance(obs, dict) else obs
 
 
 def pid_stabilizer(env, gains: PidGains = SEED_003_GAINS) -> Controller:
@@ -101,7 +97,7 @@ def pid_stabilizer(env, gains: PidGains = SEED_003_GAINS) -> Controller:
     roll_pitch = observed_roll_pitch(env.obs_spec)
 
     def act(carry, state, key):
-        carry, u = pid_step(carry, roll_pitch(state.obs), gains)
+        carry, u = pid_step(carry, roll_pitch(env.actor_obs(state.obs)), gains)
         action = pid_action(env.gait_targets(state.info), u, scale, env.robot.tilt_feet)
         return carry, _pad_action(env, action)
 

@@ -468,7 +468,7 @@ def test_pid_reads_roll_and_pitch_from_either_observation():
         quat = np.zeros(4)
         mujoco.mju_euler2Quat(quat, np.array([roll, pitch, yaw]), "XYZ")  # intrinsic x, y, z = ZYX
         state = jnp.zeros(sensor_spec.size).at[k : k + 3].set(gravity_direction(jnp.asarray(quat)))
-        got = read({"state": state, "privileged_state": jnp.zeros(5)})
+        got = read(state)
         np.testing.assert_allclose(got, [roll, pitch], atol=1e-5)
     # regression: quadson-gaits' pid row on a gait recipe indexed the dictionary observation
     ctrl = R.pid_stabilizer(recipe_env)
