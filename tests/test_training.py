@@ -186,6 +186,77 @@ def test_checkpoint_loads_for_inference(interrupted_then_resumed):
     assert env_cfg.episode_length_s == pytest.approx(0.2) and ppo_cfg.preset == "test"
 
 
+def test_init_from_starts_a_new_run_from_the_source_parameters(interrupted_then_resumed, tmp_path):
+    """Fine-tuning: the new run's step-0 checkpoint is the source's newest parameters bit for bit,
+    its configs carry the overrides, and config.json and the log name the source and its hash."""
+    source, *_ = interrupted_then_resumed
+    src_ckpt, src_step = training.latest_checkpoint(source)
+    env_cfg, ppo_cfg = training.load_run_config(source)
+    env_cfg = apply_overrides(env_cfg, ["reward.weights.termination=-5"])
+    ppo_cfg = apply_overrides(ppo_cfg, ["num_timesteps=128", "num_evals=2"])
+    child = tmp_path / "child"
+    out = io.StringIO()
+    _, params, metrics = training.train(env_cfg, ppo_cfg, child, progress_stream=out, init_from=source)
+    assert f"init from {src_ckpt}" in out.getvalue() and math.isfinite(metrics["eval/episode_reward"])
+    tmpl = training.params_template(29, 12, ppo_cfg)  # what a fresh run's networks are
+    start = training.load_checkpoint(child / "checkpoints" / "step_000000000000.msgpack", 29, 12, ppo_cfg)
+    want = training.load_checkpoint(src_ckpt, 29, 12, ppo_cfg)
+    for a, b in zip(jax.tree.leaves(start), jax.tree.leaves(want), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert jax.tree.structure(start) == jax.tree.structure(tmpl)
+    saved = json.loads((child / "config.json").read_text())
+    sha = training.checksum_path(src_ckpt).read_text().split()[0]
+    assert saved["init_from"] == {
+        "run": str(source),
+        "checkpoint": src_ckpt.name,
+        "step": src_step,
+        "sha256": sha,
+    }
+    assert saved["env"]["reward"]["weights"]["termination"] == -5.0
+    with open(child / "train.mcap", "rb") as f:
+        logged = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/train/log"])]
+    assert logged[0]["event"] == "start" and json.loads(logged[0]["init_from"])["sha256"] == sha
+    # the parameters moved on from the source's after a training epoch
+    trained = training.load_checkpoint(training.latest_checkpoint(child)[0], 29, 12, ppo_cfg)
+    assert not all(
+        np.array_equal(a, b) for a, b in zip(jax.tree.leaves(trained), jax.tree.leaves(want), strict=True)
+    )
+
+
+def test_init_from_refuses_other_networks_and_leaves_no_run(interrupted_then_resumed, tmp_path):
+    source, *_ = interrupted_then_resumed
+    env_cfg, ppo_cfg = training.load_run_config(source)
+    ppo_cfg = apply_overrides(ppo_cfg, ["policy_hidden=16,16"])
+    with pytest.raises(ValueError, match="does not fit this run's networks"):
+        training.train(env_cfg, ppo_cfg, tmp_path / "other", progress_stream=io.StringIO(), init_from=source)
+    assert not (tmp_path / "other").exists()
+    with pytest.raises(FileNotFoundError, match="not a run directory"):
+        training.train(env_cfg, ppo_cfg, tmp_path / "other", init_from=tmp_path)
+    with pytest.raises(ValueError, match="starts a new run"):
+        training.train(None, None, source, resume=True, init_from=source)
+
+
+def test_script_init_from_bad_inputs_exit_2_in_one_line(interrupted_then_resumed, tmp_path):
+    source, *_ = interrupted_then_resumed
+    cases = [
+        (["--init-from", str(tmp_path / "none")], "is not a run directory"),
+        (["--init-from", str(source), "--gait", "bound"], "remove --gait"),
+        (["--init-from", str(source), "--resume", str(source)], "give one of them"),
+        (["--init-from", str(source), "--env.reward.forwad_target=1"], "env.reward.forwad_target"),
+        (["--init-from", str(source / "config.json")], "neither a run directory nor"),
+    ]
+    for args, words in cases:
+        out = subprocess.run(
+            [sys.executable, str(ROOT / "train" / "ppo_mjx.py"), "--run-dir", str(tmp_path / "R"), *args],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        lines = out.stderr.strip().splitlines()
+        assert out.returncode == 2 and len(lines) == 1 and words in lines[0], (args, out.stderr)
+        assert not (tmp_path / "R").exists()
+
+
 def test_resume_of_a_finished_run_is_refused(interrupted_then_resumed):
     run_dir, *_ = interrupted_then_resumed
     with pytest.raises(ValueError, match="already trained"):

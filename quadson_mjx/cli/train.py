@@ -4,6 +4,7 @@
     quadson-train --ppo.num_timesteps=50000000 --env.reward.forward_target=0.4
     quadson-train --preset test --run-dir runs/smoke
     quadson-train --resume runs/20261121-101500
+    quadson-train --init-from results/gaits/bound --run-dir runs/bound_heavy --env.randomization.mass_scale=0.9,1.25
     quadson-train --task QuadsonGaitBound --run-dir results/gaits/bound     # a gait's recipe
     quadson-train --task CaramelCommandRough                  # seed 003's robot
     quadson-train --list-tasks                                # the registered tasks and their flags
@@ -73,6 +74,13 @@ def parse(argv):
     p.add_argument("--run-dir", default=None, help="default: runs/<date-time>")
     p.add_argument(
         "--resume", metavar="RUN_DIR", default=None, help="continue a run from its newest checkpoint"
+    )
+    p.add_argument(
+        "--init-from",
+        metavar="RUN",
+        default=None,
+        help="fine-tune: a new run with RUN's configs (overrides apply) starting from its newest "
+        "checkpoint's parameters (or from RUN=RUN_DIR/checkpoints/step_N.msgpack)",
     )
     p.add_argument(
         "--coordinator", default=None, help="several hosts: HOST:PORT of process 0 (jax.distributed)"
@@ -224,6 +232,44 @@ def lost_peer(e: BaseException) -> str:
     )
 
 
+def init_configs(args, overrides, primary: bool):
+    """--init-from: the source run's configs with the overrides -> (env_cfg, ppo_cfg, run_dir)."""
+    flags = [
+        name
+        for name, given in (
+            ("--task", args.task is not None),
+            ("--gait", args.gait is not None),
+            ("--gait-action", args.gait_action),
+            ("--env-preset", args.env_preset is not None),
+            ("--terrain", args.terrain is not None),
+            ("--robot", args.robot is not None),
+            ("--preset", args.preset is not None),
+        )
+        if given
+    ]
+    if flags:
+        given = " ".join(flags)
+        raise UsageError(
+            f"--init-from takes the source run's configs (change them with --env.KEY=V): remove {given}"
+        )
+    try:
+        source, _, _ = training.init_point(Path(args.init_from))
+        env_cfg, ppo_cfg = training.load_run_config(source)
+        env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
+        ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
+        env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
+        ppo_cfg = apply_overrides(ppo_cfg, ppo_over, prefix="ppo.")
+        check_env_config(env_cfg)
+        training.check_ppo_config(ppo_cfg)
+        check_backend(env_cfg)
+        run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
+        if primary:
+            training.check_new_run_dir(run_dir)
+    except (ValueError, OSError) as e:
+        raise UsageError(f"--init-from: {e}") from None
+    return env_cfg, ppo_cfg, run_dir
+
+
 @one_line_errors
 def main(argv=None) -> int:
     try:
@@ -246,7 +292,11 @@ def _main(argv) -> int:
         training.enable_compilation_cache(args.compile_cache)
     start_distributed(args)
     primary = jax.process_index() == 0  # the process that writes the run directory
-    if args.resume:
+    if args.resume and args.init_from:
+        raise UsageError("--resume continues a run, --init-from starts a new one: give one of them")
+    if args.init_from:
+        env_cfg, ppo_cfg, run_dir = init_configs(args, overrides, primary)
+    elif args.resume:
         # what would change the configs: the saved ones rule, so each is refused rather than ignored
         options = [
             name
@@ -311,7 +361,9 @@ def _main(argv) -> int:
         )
     t0 = time.monotonic()
     try:
-        _, _, metrics = training.train(env_cfg, ppo_cfg, run_dir, resume=bool(args.resume))
+        _, _, metrics = training.train(
+            env_cfg, ppo_cfg, run_dir, resume=bool(args.resume), init_from=args.init_from
+        )
     except (ValueError, FileExistsError, FileNotFoundError) as e:
         # a damaged checkpoint or state file met on resume, a directory taken in the meantime
         raise UsageError(str(e)) from None

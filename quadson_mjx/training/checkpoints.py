@@ -41,6 +41,11 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def checkpoint_sha256(path: Path) -> str:
+    """The SHA-256 (hex) of a checkpoint file's bytes, as its checksum file records it."""
+    return _sha256(Path(path))
+
+
 def _replace(tmp: Path, path: Path) -> None:
     """Renames `tmp` over `path` after its bytes reach the disk, and writes the checksum file first:
     a crash leaves either the old pair, or a new checksum beside the old file (reported as damaged,

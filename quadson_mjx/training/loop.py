@@ -42,6 +42,7 @@ from quadson_mjx.training import guards
 from quadson_mjx.training.checkpoints import (
     _load_npz,
     _save_npz,
+    checkpoint_sha256,
     env_state_path,
     load_checkpoint,
     save_checkpoint,
@@ -55,6 +56,7 @@ from quadson_mjx.training.runs import (
     _reopen_log,
     check_new_run_dir,
     check_writable_dir,
+    init_point,
     load_run_config,
     resume_point,
     run_dir_lock,
@@ -68,6 +70,7 @@ def train(
     resume: bool = False,
     progress_stream=sys.stdout,
     on_eval: Callable[[int, dict], None] | None = None,
+    init_from: str | Path | None = None,
 ):
     """Trains with brax PPO and writes the run directory. Returns (make_policy, params, metrics).
 
@@ -82,6 +85,14 @@ def train(
     normaliser only and the moments restart. A run without a checkpoint starts over from step 0.
     The previous train.mcap is kept as train.before_resume_N.mcap; its readable contents
     (read past damaged records) start the new log.
+
+    init_from (a new run only): a run directory or one of its checkpoint files whose parameters and
+    observation normaliser (newest intact checkpoint of a directory) start this run instead of the
+    seed's random ones, for fine-tuning a trained policy under changed configs; the optimiser's
+    moments and the step count start afresh. Its networks must match this run's (the observation
+    and action sizes, ppo.policy_hidden and the like): a ValueError names the mismatch. The source,
+    its step and the checkpoint's SHA-256 are kept in config.json ("init_from", kept on resume) and
+    in the log's start event, and the step-0 checkpoint is the source's parameters.
 
     SIGINT and SIGTERM (Ctrl-C, a scheduler's preemption) are deferred while training: the run
     stops at the next safe point: before a training epoch or an evaluation, or after saving a
@@ -106,7 +117,9 @@ def train(
     """
     stop = _Stop()
     with stop.installed(), contextlib.ExitStack() as held:
-        return _train(env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop, held)
+        return _train(
+            env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop, held, init_from
+        )
 
 
 def _claim_new_run_dir(run_dir: Path, held: contextlib.ExitStack) -> bool:
@@ -128,7 +141,7 @@ def _remove_if_unused(run_dir: Path) -> None:
             run_dir.rmdir()
 
 
-def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: _Stop, held):
+def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: _Stop, held, init_from):
     from brax.training.agents.ppo import train as ppo
 
     from quadson_mjx import compat
@@ -157,8 +170,21 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         print(f"\n{reason}: stopped at once; {advice}", file=sys.stderr)
 
     stop.emergency = emergency
+    origin = None  # the "init_from" record of config.json
+    if resume and init_from is not None:
+        raise ValueError("init_from starts a new run; a resumed run keeps its own parameters")
+    if init_from is not None:
+        source, init_ckpt, init_step = init_point(Path(init_from))
+        origin = {
+            "run": str(source),
+            "checkpoint": init_ckpt.name,
+            "step": init_step,
+            "sha256": checkpoint_sha256(init_ckpt),
+        }
     if resume:
         env_cfg, ppo_cfg = load_run_config(run_dir)
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            origin = json.loads((run_dir / "config.json").read_text()).get("init_from")
         if primary:
             check_writable_dir(run_dir)
             held.enter_context(run_dir_lock(run_dir))
@@ -182,6 +208,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             env = make_env(env_cfg)
             eval_env = make_env(env_cfg)
         guards.check_memory(env, ppo_cfg.num_envs, local_devices_to_use(ppo_cfg))
+        if init_from is not None:  # before anything is written: a mismatch leaves no run behind
+            try:
+                init_params = load_checkpoint(init_ckpt, env.observation_size, env.action_size, ppo_cfg)
+            except ValueError as e:
+                raise ValueError(f"init_from {init_ckpt} does not fit this run's networks: {e}") from None
     except BaseException:
         if created:
             _remove_if_unused(run_dir)
@@ -203,6 +234,12 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             else:
                 restored += "; the environments restart from the run's initial states"
         print(f"resume from step {start_step:,}: restoring {restored}", file=stream)
+    elif init_from is not None:
+        restore = init_params
+        restored = (
+            f"the parameters and normaliser of {init_ckpt} (step {init_step:,}); the optimiser starts afresh"
+        )
+        print(f"init from {init_ckpt}: {restored}", file=stream)
     devices = local_devices_to_use(ppo_cfg)
     if jax.process_count() > 1:  # every process its rows of the single-process run's keys
         state.epoch_keys = lambda epoch: compat.process_epoch_keys(ppo_cfg.seed, epoch, devices)
@@ -213,7 +250,12 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         write_text_atomic(
             run_dir / "config.json",
             json.dumps(
-                {"env": json.loads(to_json(env_cfg)), "ppo": json.loads(to_json(ppo_cfg)), "versions": vers},
+                {
+                    "env": json.loads(to_json(env_cfg)),
+                    "ppo": json.loads(to_json(ppo_cfg)),
+                    "versions": vers,
+                    **({"init_from": origin} if origin else {}),
+                },
                 indent=2,
             ),
         )
@@ -245,6 +287,8 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             "application/xml",
         )
     event = {"event": "resume" if resume else "start", "step": start_step}
+    if origin and not resume:
+        event["init_from"] = json.dumps(origin)
     if resume:
         event.update(restored=restored, kept_log=kept.name if kept else "", copied_messages=len(old))
         if contents is not None and contents.damaged:

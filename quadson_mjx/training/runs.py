@@ -191,6 +191,24 @@ def resume_point(run_dir: Path, ppo_cfg, notes: list[str] | None = None) -> tupl
     return start, (ckpt if start > 0 else None)
 
 
+def init_point(source: Path) -> tuple[Path, Path, int]:
+    """-> (source run directory, checkpoint, its step) for --init-from: `source` is a run directory
+    (its newest intact checkpoint) or one of its checkpoint files (checkpoints/step_*.msgpack).
+    FileNotFoundError for a missing run or checkpoint, CheckpointDamaged for a damaged file."""
+    from quadson_mjx.training.checkpoints import _step_of, newest_good_checkpoint
+
+    source = Path(source)
+    if source.is_file():
+        if not (source.name.startswith("step_") and source.suffix == ".msgpack"):
+            raise ValueError(f"{source} is neither a run directory nor a checkpoints/step_*.msgpack file")
+        verify_checkpoint(source)
+        return source.parent.parent, source, _step_of(source)
+    if not (source / "config.json").exists():
+        raise FileNotFoundError(f"{source} is not a run directory (no config.json) nor a checkpoint file")
+    ckpt, step = newest_good_checkpoint(source)
+    return source, ckpt, step
+
+
 def _free_name(run_dir: Path, stem: str, suffix: str) -> Path:
     n = 1
     while (run_dir / f"{stem}_{n}{suffix}").exists():
