@@ -7,6 +7,14 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+# the joystick evaluations' command sweep (quadson-rollout's suite, quadson-policy-eval): 75 commands
+SWEEP_GRID = {
+    "vx": (-0.3, -0.1, 0.1, 0.3, 0.5),
+    "vy": (-0.2, 0.0, 0.2),
+    "yaw_rate": (-0.8, -0.4, 0.0, 0.4, 0.8),
+}
 
 
 def sample_command(cfg, seed_speed: float, rng):
@@ -53,3 +61,9 @@ def push(push_cfg, timer, rng):
     kick = jnp.where(push_now, speed, 0.0) * jnp.array([jnp.cos(angle), jnp.sin(angle)])
     next_timer = jax.random.uniform(k_next, (), minval=push_cfg.interval_s[0], maxval=push_cfg.interval_s[1])
     return jnp.where(push_now, next_timer, timer), kick, rng
+
+
+def sweep_commands() -> np.ndarray:
+    """(75, 3) the sweep's commands (vx, vy, yaw rate), vx slowest."""
+    g = np.meshgrid(*SWEEP_GRID.values(), indexing="ij")
+    return np.stack([a.ravel() for a in g], axis=-1)

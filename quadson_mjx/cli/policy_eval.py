@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     runs = policies(args)
     if args.out:
         check_writable(args.out, "--out")
-    from quadson_mjx.cli.rollout import sweep_commands
+    from quadson_mjx.commands import sweep_commands
     from quadson_mjx.policy_eval import evaluate
 
     rows = evaluate(runs, sweep_commands(), args.terrain, args.seconds, args.replicas, args.seed)

@@ -42,6 +42,7 @@ import numpy as np
 
 from quadson_mjx import errors, gait, recording
 from quadson_mjx import rollout as R
+from quadson_mjx.commands import sweep_commands
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import ENV_TERRAINS, check_env_config, env_config, with_added_keys
@@ -52,18 +53,7 @@ MAX_SECONDS = 3600.0  # longest trial [s]: an hour of one env is ~180k steps and
 
 SUITE_YAW_RATE = 0.25  # rad/s, seed 003's turning test
 # the command sweep: the joystick range of the issue, a 5 x 3 x 5 grid (75 envs, one command each)
-SWEEP_GRID = {
-    "vx": (-0.3, -0.1, 0.1, 0.3, 0.5),
-    "vy": (-0.2, 0.0, 0.2),
-    "yaw_rate": (-0.8, -0.4, 0.0, 0.4, 0.8),
-}
 RANDOMIZE_OVERRIDES = ["randomize=true", "pushes=true"]
-
-
-def sweep_commands() -> np.ndarray:
-    """(75, 3) the sweep's commands (vx, vy, yaw rate), vx slowest."""
-    g = np.meshgrid(*SWEEP_GRID.values(), indexing="ij")
-    return np.stack([a.ravel() for a in g], axis=-1)
 
 
 def policy_ground_overrides(run_dir) -> list[str]:
