@@ -27,6 +27,7 @@ def reward_config(height_target: float, command_tracking: bool = False) -> ml_co
         # velocity-command tracking (off in the seed preset)
         "lin_vel_tracking_exp": 1.0 if command_tracking else 0.0,
         "ang_vel_tracking_exp": 0.5 if command_tracking else 0.0,
+        "yaw_rate_error_l2": 0.0,  # the yaw-rate error squared, unbounded (off in every preset)
         # the joystick recipe's stability terms (env_config(joystick=True)); off otherwise
         "lin_vel_z_l2": 0.0,
         "ang_vel_xy_l2": 0.0,

@@ -71,6 +71,12 @@ def ang_vel_tracking_exp(ang_vel, command, sigma):
     return tracking_exp(jnp.square(ang_vel[..., 2] - command[..., 2]), sigma)
 
 
+def yaw_rate_error_l2(ang_vel, command):
+    """(wz - commanded yaw rate)^2 [rad^2/s^2]: the square whose mean the yaw-rate RMS measures, a
+    penalty that keeps growing with the error where ang_vel_tracking_exp flattens -> (...,)."""
+    return jnp.square(ang_vel[..., 2] - command[..., 2])
+
+
 def lin_vel_z_l2(lin_vel):
     """vz^2 [m^2/s^2] (the joystick recipe's vertical penalty, MuJoCo Playground Go1) -> (...,)."""
     return jnp.square(lin_vel[..., 2])
@@ -129,6 +135,7 @@ def locomotion_terms(
         "torque_l2": torque_l2(actuator_force),
         "lin_vel_tracking_exp": lin_vel_tracking_exp(lin_vel, command, r.tracking_sigma),
         "ang_vel_tracking_exp": ang_vel_tracking_exp(ang_vel, command, r.tracking_sigma),
+        "yaw_rate_error_l2": yaw_rate_error_l2(ang_vel, command),
         "lin_vel_z_l2": lin_vel_z_l2(lin_vel),
         "ang_vel_xy_l2": ang_vel_xy_l2(ang_vel),
         "contact_phase": contact_phase(contact, stance),
