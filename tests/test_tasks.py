@@ -55,6 +55,8 @@ def old_script_config(robot, env_preset, terrain, gait, gait_action):
 
 # Committed run directories -> (task, overrides): the saved env config (keys added since, with
 # their old values) is the task's config with these overrides.
+BOUND_WIDE = ["randomization.mass_scale=0.85,1.25", "randomization.base_com_shift_m=-0.02,0.03"]
+BOUND_WEIGHTS = ["reward.weights.contact_pattern=8.0", "reward.weights.forward_velocity_exp=2.0"]
 COMMITTED_RUNS = {
     # trained before the robust recipe observed the robot's sensors: its true_state twin
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
@@ -69,8 +71,22 @@ COMMITTED_RUNS = {
     "results/getup_mirror_h100": ("QuadsonGetupFlat", ["getup.mirror_to=left"]),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
-    "results/gaits/pace": ("QuadsonGaitPace", []),
-    "results/gaits/bound": ("QuadsonGaitBound", []),
+    # fine-tuned (--init-from) from before_finetune/pace under a wider randomization
+    "results/gaits/pace": (
+        "QuadsonGaitPace",
+        [
+            "randomization.mass_scale=0.85,1.25",
+            "randomization.base_com_shift_m=-0.03,0.03",
+            "randomization.motor_strength=0.7,1.2",
+        ],
+    ),
+    "results/gaits/before_finetune/pace": ("QuadsonGaitPace", []),
+    # fine-tuned in three steps (--init-from): wider mass and CoM ranges (finetune/bound_wide),
+    # more steps (finetune/bound_wide_more), then the pattern and forward terms doubled (bound)
+    "results/gaits/bound": ("QuadsonGaitBound", [*BOUND_WIDE, *BOUND_WEIGHTS]),
+    "results/gaits/finetune/bound_wide": ("QuadsonGaitBound", BOUND_WIDE),
+    "results/gaits/finetune/bound_wide_more": ("QuadsonGaitBound", BOUND_WIDE),
+    "results/gaits/before_finetune/bound": ("QuadsonGaitBound", []),
     "results/gaits/gallop": ("QuadsonGaitGallop", []),
     # trials of a fall penalty (not kept as the gaits' policies)
     "results/gaits/trials_termination/t_pace": ("QuadsonGaitPace", ["reward.weights.termination=-100"]),
@@ -279,6 +295,24 @@ def test_committed_run_configs_are_tasks(run_dir):
     assert tasks.find_task(saved) == (None if overrides else task)
     env_cfg, _ = training.load_run_config(ROOT / run_dir)  # and it loads as a run
     assert to_json(with_added_keys(env_cfg)) == to_json(want)
+
+
+def test_committed_fine_tunes_name_a_committed_checkpoint_by_its_hash():
+    """A run made with --init-from records its source; the source checkpoint is committed and its
+    bytes hash (hashlib, independent of the checkpoint code) to the recorded SHA-256."""
+    import hashlib
+
+    tuned = 0
+    for run_dir in sorted(COMMITTED_RUNS):
+        origin = json.loads((ROOT / run_dir / "config.json").read_text()).get("init_from")
+        if origin is None:
+            continue
+        tuned += 1
+        src = ROOT / origin["run"] / "checkpoints" / origin["checkpoint"]
+        assert origin["run"] in COMMITTED_RUNS and src.is_file(), (run_dir, origin)
+        assert hashlib.sha256(src.read_bytes()).hexdigest() == origin["sha256"]
+        assert origin["checkpoint"] == f"step_{origin['step']:012d}.msgpack"
+    assert tuned >= 1
 
 
 def test_every_committed_run_is_listed():

@@ -1,5 +1,6 @@
-"""Which randomized episodes of a committed gait policy fall, and how: for each of seeds 1-3 (the
-seeds of results/gaits/eval_cpu_pace_bound_s*.json, the same draws as quadson-gaits --seed S), every
+"""Which randomized episodes of the 150M-step pace or bound (results/gaits/before_finetune/, the
+policies before their fine-tuning) fall, and how: for each of seeds 1-3 (the seeds of
+results/gaits/eval_cpu_pace_bound_s*.json, the same draws as quadson-gaits --seed S), every
 falling episode with the time of its fall, roll and pitch then [deg], its model's ground friction,
 total mass [kg], weakest motor's strength factor and base CoM x [m], and its mean forward speed over
 the 0.5 s before the fall [m/s]; then the means over all 256 models.
@@ -21,7 +22,7 @@ from quadson_mjx.randomize import randomize
 
 gait = sys.argv[1]
 seeds = [int(s) for s in sys.argv[2].split(",")]
-policy, env_cfg, _, _ = training.load_policy(Path(f"results/gaits/{gait}"))
+policy, env_cfg, _, _ = training.load_policy(Path(f"results/gaits/before_finetune/{gait}"))
 env_cfg = with_added_keys(env_cfg)
 env_cfg = apply_overrides(env_cfg, ["command_tracking=false", "randomize=true"])
 env = LocomotionEnv(env_cfg)
