@@ -232,6 +232,23 @@ def lost_peer(e: BaseException) -> str:
     )
 
 
+def new_run_configs(env_cfg, ppo_cfg, overrides, run_dir, primary: bool):
+    """A new run's configs: the --env./--ppo. overrides applied and checked, and its run directory
+    (default runs/<date-time>; on the primary process checked to be new) -> (env_cfg, ppo_cfg,
+    run_dir). Raises ValueError (or OSError) naming what is wrong."""
+    env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
+    ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
+    env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
+    ppo_cfg = apply_overrides(ppo_cfg, ppo_over, prefix="ppo.")
+    check_env_config(env_cfg)
+    training.check_ppo_config(ppo_cfg)
+    check_backend(env_cfg)
+    run_dir = Path(run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
+    if primary:
+        training.check_new_run_dir(run_dir)
+    return env_cfg, ppo_cfg, run_dir
+
+
 def init_configs(args, overrides, primary: bool):
     """--init-from: the source run's configs with the overrides -> (env_cfg, ppo_cfg, run_dir)."""
     flags = [
@@ -255,16 +272,7 @@ def init_configs(args, overrides, primary: bool):
     try:
         source, _, _ = training.init_point(Path(args.init_from))
         env_cfg, ppo_cfg = training.load_run_config(source)
-        env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
-        ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
-        env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
-        ppo_cfg = apply_overrides(ppo_cfg, ppo_over, prefix="ppo.")
-        check_env_config(env_cfg)
-        training.check_ppo_config(ppo_cfg)
-        check_backend(env_cfg)
-        run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
-        if primary:
-            training.check_new_run_dir(run_dir)
+        env_cfg, ppo_cfg, run_dir = new_run_configs(env_cfg, ppo_cfg, overrides, args.run_dir, primary)
     except (ValueError, OSError) as e:
         raise UsageError(f"--init-from: {e}") from None
     return env_cfg, ppo_cfg, run_dir
@@ -341,16 +349,9 @@ def _main(argv) -> int:
                 flags = {k: getattr(args, k) for k in TASK_FLAG_DEFAULTS}
                 flags = {k: d if flags[k] is None else flags[k] for k, d in TASK_FLAG_DEFAULTS.items()}
                 env_cfg = tasks.config_from_flags(**flags, gait_action=args.gait_action)
-            env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
-            ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
-            env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
-            ppo_cfg = apply_overrides(training.ppo_config(preset), ppo_over, prefix="ppo.")
-            check_env_config(env_cfg)
-            training.check_ppo_config(ppo_cfg)
-            check_backend(env_cfg)
-            run_dir = Path(args.run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
-            if primary:
-                training.check_new_run_dir(run_dir)
+            env_cfg, ppo_cfg, run_dir = new_run_configs(
+                env_cfg, training.ppo_config(preset), overrides, args.run_dir, primary
+            )
         except (ValueError, FileExistsError) as e:
             raise UsageError(str(e)) from None
     print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
