@@ -493,8 +493,8 @@ def test_ppo_gait_trains_the_recipe(ppo_cli, monkeypatch, tmp_path):
     class Stop(Exception):
         pass
 
-    def fake_train(env_cfg, ppo_cfg, run_dir, resume):
-        seen.update(env_cfg=env_cfg, run_dir=run_dir, resume=resume)
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None):
+        seen.update(env_cfg=env_cfg, run_dir=run_dir, resume=resume, init_from=init_from)
         raise Stop
 
     monkeypatch.setattr(ppo_cli.training, "train", fake_train)
@@ -505,6 +505,7 @@ def test_ppo_gait_trains_the_recipe(ppo_cli, monkeypatch, tmp_path):
     finally:
         signal.signal(signal.SIGTERM, sigterm)
     cfg = seen["env_cfg"]
+    assert seen["init_from"] is None and seen["resume"] is False
     assert cfg.gait == "bound" and cfg.randomize is True
     assert cfg.gait_scale.step_length_m == GAIT_RECIPES["bound"]["step_length_m"]
     assert cfg.reward.target_gait_speed is True

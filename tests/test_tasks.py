@@ -197,7 +197,8 @@ def _fake_train(monkeypatch):
     class Stop(Exception):
         pass
 
-    def fake_train(env_cfg, ppo_cfg, run_dir, resume):
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None):
+        assert init_from is None  # a new run from its task, not a fine-tune
         seen["env_cfg"] = env_cfg
         raise Stop
 
