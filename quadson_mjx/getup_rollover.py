@@ -44,6 +44,7 @@ import numpy as np
 
 from quadson_mjx import sim2sim_plant as P
 from quadson_mjx.deploy_supervisor import tilt
+from quadson_mjx.quat import axis_quat
 from quadson_mjx.robots import get_robot
 from quadson_mjx.robots.quadson import chain_guard
 from quadson_mjx.robots.quadson import model as quadson_model
@@ -68,12 +69,6 @@ class Start:
     qpos: np.ndarray  # (nq,) placed CLEARANCE_M above the ground, chains closed
     angles: np.ndarray  # (12,) the motor pose held while settling and at the motion's start [rad]
     settle_s: float  # held this long before the motion (0: released at rest when it starts) [s]
-
-
-def _axis_quat(axis: int, angle: float) -> np.ndarray:
-    q = np.zeros(4)
-    q[0], q[1 + axis] = math.cos(angle / 2), math.sin(angle / 2)
-    return q
 
 
 def place(mj_model, quat, angles, settle_s: float, name: str) -> Start:
@@ -102,7 +97,7 @@ def starts(mj_model, back_draws: int = 3, seed: int = 0) -> dict[str, list[Start
     from quadson_mjx.robots.quadson import getup_start
 
     home = quadson_model.home_motor_angles()
-    flip = lambda deg: _axis_quat(0, math.radians(deg))  # noqa: E731 (roll > 90: right side lower)
+    flip = lambda deg: axis_quat(0, math.radians(deg))  # noqa: E731 (roll > 90: right side lower)
     back = [place(mj_model, flip(180.0), home, SETTLE_S, "back_home")]
     if back_draws:
         cfg = getup_start.StartConfig(class_weights=(1.0, 0.0, 0.0, 0.0, 0.0))
@@ -154,9 +149,10 @@ def rollout(plant: P.Plant, state: np.ndarray, start: Start, targets: np.ndarray
     return rollout_checked(plant, state, start, targets)[0]
 
 
-def rollout_checked(plant: P.Plant, state: np.ndarray, start: Start, targets: np.ndarray):
+def rollout_checked(plant: P.Plant, state: np.ndarray, start: Start, targets: np.ndarray, on_tick=None):
     """rollout, and at every tick the deepest contact penetration and the largest five-bar closure
-    residual -> (tilt (T + 1,) [deg], deepest penetration [m] (>= 0), largest residual [m])."""
+    residual -> (tilt (T + 1,) [deg], deepest penetration [m] (>= 0), largest residual [m]).
+    on_tick: None or a function of MjData called after every tick."""
     m, d = plant.m, plant.d
     plant.reset()  # empties the latency queue
     mujoco.mj_setState(m, d, state, _STATE)
@@ -170,7 +166,14 @@ def rollout_checked(plant: P.Plant, state: np.ndarray, start: Start, targets: np
         if d.ncon:
             depth = max(depth, -float(d.contact.dist[: d.ncon].min()))
         gap = max(gap, float(quadson_model.closure_residual(m, d).max()))
+        if on_tick is not None:
+            on_tick(d)
     return np.degrees(out), depth, gap
+
+
+def physical(depth: float, gap: float) -> bool:
+    """A tick's physics as credible as a real get-up's (PENETRATION_MAX_M, CLOSURE_MAX_M)."""
+    return depth <= PENETRATION_MAX_M and gap <= CLOSURE_MAX_M
 
 
 def replay(plant: P.Plant, start: Start, actions, video=None) -> dict:
@@ -179,32 +182,23 @@ def replay(plant: P.Plant, start: Start, actions, video=None) -> dict:
     [rad/s] and the five-bar closure residual [m], so that a roll-over found by the search can be
     told from a contact or constraint artefact; video: None or an .mp4/.gif path rendered at the
     control rate from a camera tracking the base."""
-    m, d = plant.m, plant.d
-    ids = quadson_model.model_ids(m)
+    ids = quadson_model.model_ids(plant.m)
     targets, guarded = motion_targets(actions)
-    state = settle(plant, start)
-    plant.reset()
-    mujoco.mj_setState(m, d, state, _STATE)
-    mujoco.mj_forward(m, d)
-    plant.targets = start.angles.copy()
+    speed = [0.0]
     writer = renderer = None
     if video is not None:
         from quadson_mjx.video import Renderer, VideoWriter
 
         writer = VideoWriter(video, 640, 480, 1.0 / DT)
-        renderer = Renderer(m, 640, 480)
-    tilts, depth, speed, gap = [math.degrees(tilt(d.qpos[3:7]))], 0.0, 0.0, 0.0
+        renderer = Renderer(plant.m, 640, 480)
+
+    def on_tick(d):
+        speed[0] = max(speed[0], float(np.abs(d.qvel[ids.motor_dofadr]).max()))
+        if writer is not None:
+            writer.write(renderer.render(d.qpos))
+
     try:
-        for tgt in targets:
-            plant.send(tgt)
-            plant.advance(DT)
-            tilts.append(math.degrees(tilt(d.qpos[3:7])))
-            if d.ncon:
-                depth = min(depth, float(d.contact.dist[: d.ncon].min()))
-            speed = max(speed, float(np.abs(d.qvel[ids.motor_dofadr]).max()))
-            gap = max(gap, float(quadson_model.closure_residual(m, d).max()))
-            if writer is not None:
-                writer.write(renderer.render(d.qpos))
+        tilts, depth, gap = rollout_checked(plant, settle(plant, start), start, targets, on_tick)
     except BaseException:
         if writer is not None:
             writer.abort()
@@ -214,10 +208,10 @@ def replay(plant: P.Plant, start: Start, actions, video=None) -> dict:
     return {
         "start": start.name,
         "tilt_deg": np.round(tilts, 1).tolist(),
-        "min_tilt_deg": round(min(tilts), 2),
-        "final_tilt_deg": round(tilts[-1], 2),
-        "deepest_penetration_mm": round(-1000.0 * depth, 2),
-        "fastest_motor_rad_s": round(speed, 2),
+        "min_tilt_deg": round(float(tilts.min()), 2),
+        "final_tilt_deg": round(float(tilts[-1]), 2),
+        "deepest_penetration_mm": round(1000.0 * depth, 2),
+        "fastest_motor_rad_s": round(speed[0], 2),
         "largest_closure_residual_mm": round(1000.0 * gap, 3),
         "guarded_share": float(guarded.mean()),
     }
@@ -238,7 +232,7 @@ def evaluate(job) -> np.ndarray:
     rows = []
     for a in actions:
         tilts, depth, gap = rollout_checked(plant, _WORKER[key], start, motion_targets(a)[0])
-        ok = depth <= PENETRATION_MAX_M and gap <= CLOSURE_MAX_M
+        ok = physical(depth, gap)
         rows.append((tilts.min() if ok else 180.0, tilts[-1], float(ok)))
     return np.asarray(rows)
 
@@ -359,7 +353,7 @@ def perturbed(plant: P.Plant, start: Start, actions, seed: int = 0) -> list[floa
     for _ in range(PERTURB_N):
         noisy = a + rng.uniform(-PERTURB, PERTURB, a.shape)
         tilts, depth, gap = rollout_checked(plant, state, start, motion_targets(noisy)[0])
-        ok = depth <= PENETRATION_MAX_M and gap <= CLOSURE_MAX_M
+        ok = physical(depth, gap)
         out.append(round(float(tilts.min()), 1) if ok else 180.0)
     return out
 

@@ -8,6 +8,9 @@ loop runs without it. Batched: a quaternion is (..., 4), a vector (..., 3).
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from array_api_compat import array_namespace
 
 _CONJ = (1.0, -1.0, -1.0, -1.0)
@@ -75,3 +78,10 @@ def quat_mul(a, b):
         ],
         axis=-1,
     )
+
+
+def axis_quat(axis: int, angle: float) -> np.ndarray:
+    """wxyz rotation (numpy, float64) by angle [rad] about body axis 0 (x), 1 (y) or 2 (z)."""
+    q = np.zeros(4)
+    q[0], q[1 + axis] = math.cos(angle / 2), math.sin(angle / 2)
+    return q

@@ -26,7 +26,7 @@ import math
 import mujoco
 import numpy as np
 
-from quadson_mjx.quat import quat_mul, quat_rotate, quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.quat import axis_quat, quat_mul, quat_rotate, quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.sim2sim_model import TERRAINS, TIMESTEP_S, plant_model  # noqa: F401 (the plant's model)
 
 FIELD_GROUP = 0  # geom group of the ground (the scenes' floor); the robot's geoms are groups 2 and 3
@@ -204,7 +204,7 @@ class Plant:
         s = self.sensors
         self.gyro_bias = self.rng.uniform(-s.gyro_bias, s.gyro_bias, 3) if s.enabled else np.zeros(3)
         tilt = self.rng.uniform(-s.mount_tilt, s.mount_tilt, 2) if s.enabled else np.zeros(2)
-        self.mount = quat_mul(_axis_quat(0, tilt[0]), _axis_quat(1, tilt[1]))
+        self.mount = quat_mul(axis_quat(0, tilt[0]), axis_quat(1, tilt[1]))
         self.heading_drift = 0.0
         self.push_timer = self._next_push()
         self.pushes = 0
@@ -237,7 +237,7 @@ class Plant:
         gyro = quat_rotate_inverse(self.mount, w) + self.gyro_bias
         if s.enabled:
             noise = self.rng.normal(0.0, s.attitude_noise, 3)
-            imu_q = quat_mul(_axis_quat(2, self.heading_drift), quat_mul(imu_q, _small_quat(noise)))
+            imu_q = quat_mul(axis_quat(2, self.heading_drift), quat_mul(imu_q, _small_quat(noise)))
             gyro = gyro + self.rng.normal(0.0, s.gyro_noise, 3)
         motor = d.qpos[self.qadr].copy()
         if s.enabled:
@@ -365,13 +365,6 @@ def _copy_fields(m) -> dict:
 def _restore_fields(m, saved: dict) -> None:
     for k, v in saved.items():
         getattr(m, k)[:] = v
-
-
-def _axis_quat(axis: int, angle: float) -> np.ndarray:
-    """wxyz rotation by angle [rad] about body axis 0 (x), 1 (y) or 2 (z)."""
-    q = np.zeros(4)
-    q[0], q[1 + axis] = math.cos(angle / 2), math.sin(angle / 2)
-    return q
 
 
 def _small_quat(v) -> np.ndarray:

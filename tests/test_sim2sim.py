@@ -16,7 +16,7 @@ from quadson_mjx import sim2sim as S
 from quadson_mjx import sim2sim_plant as P
 from quadson_mjx.config import to_json
 from quadson_mjx.env_config import env_config
-from quadson_mjx.quat import quat_to_rpy
+from quadson_mjx.quat import axis_quat, quat_to_rpy
 from quadson_mjx.robots import get_robot
 from quadson_mjx.sim2sim_model import plant_model
 
@@ -138,7 +138,7 @@ def test_imu_reads_a_known_pose_with_mount_tilt_bias_and_heading_drift(robot, fl
     np.testing.assert_allclose(quat_to_rpy(r.imu_quat_wxyz), [roll, pitch, yaw], atol=1e-9)
     np.testing.assert_allclose(r.gyro, 0.0, atol=1e-12)
     plant.gyro_bias = np.array([0.01, -0.02, 0.03])
-    plant.mount = P._axis_quat(0, 0.02)  # the IMU rolled 0.02 rad on the frame
+    plant.mount = axis_quat(0, 0.02)  # the IMU rolled 0.02 rad on the frame
     d.qpos[3:7] = [1.0, 0.0, 0.0, 0.0]
     mujoco.mj_forward(plant.m, d)
     r = plant.read()
