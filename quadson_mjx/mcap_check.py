@@ -6,8 +6,9 @@ The file is walked record by record (opcode, length, body), and each record is p
 the mcap library: a record that fails (a chunk whose CRC does not match or that does not
 decompress, an attachment whose CRC does not match, a record cut short) is reported with its byte
 offset and skipped, and reading goes on with the next record, so messages after a damaged chunk
-are kept. Where a damaged length field leaves the walk out of step, it resumes at the next place
-where two consecutive records parse. CRCs checked: every chunk's, every attachment's, the summary
+are kept. The walk goes on at a damaged record's declared end where the record there and the one
+after it parse; where a damaged length field leaves that end out of step, it resumes at the next
+place where two consecutive records parse (a footer only where the closing magic follows it). CRCs checked: every chunk's, every attachment's, the summary
 section's and the data section's (where the writer stored them; 0 means none). Records without a
 CRC (metadata, a chunk's uncompressed bytes' framing) are checked only in that they parse.
 
@@ -155,19 +156,37 @@ def _opcode_name(opcode: int) -> str:
         return f"opcode {opcode:#04x}"
 
 
+def _in_step(data: bytes, p: int) -> bool:
+    """Whether a walk can go on at `p`: the record there parses, and so does the one after it, or
+    the closing magic follows (a footer must be followed by it: the footer's body is 20 bytes that
+    any bytes parse as)."""
+    if p >= len(data) or data[p] not in _KNOWN_OPCODES:
+        return False
+    try:
+        opcode, body, _ = _record_at(data, p)
+        nxt = p + _RECORD_HEADER + len(body)
+        if data[nxt:] == MAGIC:
+            return True
+        if opcode == Opcode.FOOTER:
+            return False
+        _record_at(data, nxt)
+        return True
+    except ValueError:
+        return False
+
+
 def _resync(data: bytes, pos: int) -> int | None:
-    """The first offset after `pos` where a record and the one after it both parse, or None."""
+    """Where the walk goes on after a damaged record at `pos`, or None. Its declared end first: a
+    chunk whose CRC fails or that does not decompress still has its length. Only where that end is
+    out of step (a damaged length) is the file searched, from `pos` on, for a place in step."""
+    if pos + _RECORD_HEADER <= len(data):
+        (length,) = struct.unpack_from("<Q", data, pos + 1)
+        declared_end = pos + _RECORD_HEADER + length
+        if declared_end < len(data) and _in_step(data, declared_end):
+            return declared_end
     for p in range(pos + 1, len(data) - _RECORD_HEADER):
-        if data[p] not in _KNOWN_OPCODES:
-            continue
-        try:
-            opcode, body, _ = _record_at(data, p)
-            nxt = p + _RECORD_HEADER + len(body)
-            if opcode != Opcode.FOOTER and data[nxt:] != MAGIC:
-                _record_at(data, nxt)
+        if _in_step(data, p):
             return p
-        except ValueError:
-            continue
     return None
 
 

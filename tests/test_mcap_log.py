@@ -242,3 +242,30 @@ def test_regression_mcap_check_read_only_output_folder_is_refused(tmp_path, caps
     assert mcap_check.main([str(good), "--recover", str(ro / "out.mcap")]) == 2
     assert "not writable" in _one_line_error(capsys)
     assert list(ro.iterdir()) == []
+
+
+def test_damaged_chunk_whose_header_reads_as_a_footer_loses_only_itself_regression(tmp_path):
+    # Regression: after a damaged chunk the walk searched on from the chunk's second byte, and a
+    # footer's body is 20 bytes that any bytes parse as. Times 0x1402 and 0x1500 make the chunk's
+    # first field read as a footer of length 20 (bytes 02 14 00 00 00 00 00 00 | 00 15 ...), so
+    # every later message was lost (25 of 400 rewritten test-training logs with a flipped byte).
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / "log.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        w.start(profile="", library="test")
+        sid = w.register_schema(name="s", encoding="jsonschema", data=b"{}")
+        cid = w.register_channel(topic="/t", message_encoding="json", schema_id=sid)
+        for times in ([0x1000], [0x1402, 0x1500], [0x2000]):
+            for t in times:
+                w.add_message(cid, log_time=t, publish_time=t, data=json.dumps({"t": t}).encode())
+            w.flush()
+        w.finish()
+    chunks, _ = _index(path)
+    second = sorted(chunks, key=lambda c: c.chunk_start_offset)[1]
+    bad = _flip(path, tmp_path / "bad.mcap", second.chunk_start_offset + second.chunk_length - 5)
+    contents = mcap_check.read_contents(bad)
+    assert [m.log_time for m in contents.messages] == [0x1000, 0x2000]
+    assert len(contents.damaged) == 1 and f"offset {second.chunk_start_offset}: CHUNK" in contents.damaged[0]
+    assert contents.footer is not None and contents.footer.summary_start > second.chunk_start_offset
