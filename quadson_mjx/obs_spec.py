@@ -15,7 +15,7 @@ import dataclasses
 import json
 from collections.abc import Mapping, Sequence
 
-from array_api_compat import array_namespace
+from quadson_mjx.arrays import namespace
 
 # sensors an observation entry may come from: "estimator" is a state estimator the robot would need
 # (the project provides none), "simulator" what only a simulator knows (the critic's privileged view)
@@ -93,7 +93,7 @@ class Spec:
         for e in self.entries:
             if parts[e.name].shape[-1:] != (e.size,):
                 raise ValueError(f"{e.name} has shape {parts[e.name].shape}, the spec says (..., {e.size})")
-        xp = array_namespace(*(parts[n] for n in names))
+        xp = namespace(*(parts[n] for n in names))
         return xp.concat([parts[n] for n in names], axis=-1)
 
     def split(self, vector) -> dict:

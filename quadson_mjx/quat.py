@@ -2,7 +2,7 @@
 
 Each function works on numpy arrays (the deploy loop, the MCAP writer, MuJoC C rollouts) and on JAX
 arrays and tracers (the environment, under jit and vmap), with the namespace of its input
-(`array_api_compat.array_namespace`), so this module never imports jax itself: the robot's control
+(`quadson_mjx.arrays.namespace`), so this module never imports jax itself: the robot's control
 loop runs without it. Batched: a quaternion is (..., 4), a vector (..., 3).
 """
 
@@ -11,17 +11,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from array_api_compat import array_namespace
+
+from quadson_mjx.arrays import namespace
 
 _CONJ = (1.0, -1.0, -1.0, -1.0)
 
 
-def _xp(*arrays):
-    """The namespace of the arrays; plain Python sequences count as numpy."""
-    import numpy as np
-
-    arrays = [a for a in arrays if hasattr(a, "shape")]
-    return array_namespace(*arrays) if arrays else array_namespace(np.zeros(0))
+_xp = namespace  # the arrays' namespace; plain Python sequences count as numpy
 
 
 def quat_to_rpy(quat):

@@ -57,6 +57,19 @@ def test_assemble_split_and_json_round_trip():
     np.testing.assert_array_equal(out, batch)
 
 
+def test_array_namespace_of_numpy_jax_and_tracers():
+    from quadson_mjx.arrays import namespace
+
+    assert namespace(np.zeros(2)).__name__ == "array_api_compat.numpy"
+    assert namespace([1.0, 2.0]).__name__ == namespace().__name__ == "array_api_compat.numpy"
+    assert namespace(jnp.zeros(2), 3.0) is jnp
+    seen = []
+    jax.jit(jax.vmap(lambda x: seen.append(namespace(x)) or x))(jnp.zeros((2, 3)))
+    assert seen == [jnp]  # a batched tracer under jit: taken from the tracer itself
+    with pytest.raises(TypeError, match="Multiple namespaces"):
+        namespace(np.zeros(2), jnp.zeros(2))
+
+
 def test_assemble_refuses_a_wrong_or_missing_part():
     spec = obs_spec.locomotion_observation(LEGS, MOTORS, command_tracking=False)
     parts = spec.split(np.zeros(29))
