@@ -4,6 +4,7 @@ Ctrl-C, resume, inference from a checkpoint, and config errors."""
 import io
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -150,6 +151,18 @@ def test_resume_after_a_damaged_log_record_keeps_every_original_regression(inter
     )
     before = [m["progress"]["step"] for t, m in msgs if t == "/train/metrics"]
     assert 128 in before  # the evaluation after the damaged record survived
+
+
+def test_resumed_run_loads_its_programs_from_the_persistent_cache_regression(interrupted_then_resumed):
+    # Regression: the first program traced in a process held a dead constant (array_api_compat's
+    # jnp.empty(0)) and jax's traces depended on what ran before, so a second training in one
+    # process lowered its programs to other cache keys and compiled them again (the resume here:
+    # 24 s and 15 s). conftest.py turns the persistent cache on for programs of over 1 s.
+    _, interrupted, _, _ = interrupted_then_resumed
+    line = [ln for ln in interrupted["resume_output"].splitlines() if "XLA compilations" in ln][0]
+    hits = int(re.search(r"\((\d+) from the cache\)", line).group(1))
+    slow = [float(s) for s in re.findall(r"jit\([^)]*\) ([0-9.]+) s", line)]
+    assert hits >= 2 and max(slow) < 5.0, line  # the training epoch and the evaluation, loaded
 
 
 def test_resumed_run_continues_the_uninterrupted_curve_exactly_regression(

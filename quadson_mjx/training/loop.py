@@ -114,7 +114,14 @@ def train(
     the checkpoints; the others write nothing (on resume they read the run directory, so it must
     be on a filesystem every process sees). A stop on a signal saves no environments' states
     there (they are spread over the processes): the resume restarts them from the initial states.
+
+    It starts by dropping the process's traces and compiled programs (jax.clear_caches): what was
+    traced before changes how jax lowers the training's programs, so a second training in one
+    process (a sweep, a test suite) would compile them again under other persistent-cache keys;
+    cleared, it lowers them as a fresh process does and loads them from the cache (measured on 2
+    CPU cores: a second 'test'-preset training 42 s -> 13 s).
     """
+    jax.clear_caches()
     stop = _Stop()
     with stop.installed(), contextlib.ExitStack() as held:
         return _train(
