@@ -21,8 +21,8 @@ def namespace(*arrays):
     arrays = [a for a in arrays if hasattr(a, "shape")]
     if not arrays:
         return array_namespace(np.zeros(0))
-    if not any(isinstance(a, np.ndarray | np.generic) for a in arrays):
-        spaces = {a.__array_namespace__() for a in arrays if hasattr(a, "__array_namespace__")}
-        if len(spaces) == 1 and all(hasattr(a, "__array_namespace__") for a in arrays):
+    if all(hasattr(a, "__array_namespace__") and not isinstance(a, np.ndarray | np.generic) for a in arrays):
+        spaces = {a.__array_namespace__() for a in arrays}
+        if len(spaces) == 1:
             return spaces.pop()
-    return array_namespace(*arrays)
+    return array_namespace(*arrays)  # numpy, and the error for a mix

@@ -10,8 +10,8 @@ are kept. The walk goes on at a damaged record's declared end where the record t
 after it parse; where a damaged length field leaves that end out of step, it resumes at the next
 place where two consecutive records parse (a footer only where the closing magic follows it).
 CRCs checked: every chunk's, every attachment's, the summary section's and the data section's
-(where the writer stored them; 0 means none). Records without a
-CRC (metadata, a chunk's uncompressed bytes' framing) are checked only in that they parse.
+(where the writer stored them; 0 means none). Records without a CRC (metadata, a chunk's
+uncompressed bytes' framing) are checked only in that they parse.
 
 A file is complete when nothing was damaged and its summary (written by a writer that finished) is
 present and agrees with the messages read. The report names the topics, schemas, message counts,

@@ -17,12 +17,9 @@ from quadson_mjx.arrays import namespace
 _CONJ = (1.0, -1.0, -1.0, -1.0)
 
 
-_xp = namespace  # the arrays' namespace; plain Python sequences count as numpy
-
-
 def quat_to_rpy(quat):
     """quat (..., 4) wxyz -> (..., 3) roll, pitch, yaw [rad], ZYX convention (R = Rz Ry Rx)."""
-    xp = _xp(quat)
+    xp = namespace(quat)
     quat = xp.asarray(quat)
     w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
     roll = xp.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
@@ -39,7 +36,7 @@ def _cross(xp, a, b):
 
 def quat_rotate(quat, vec):
     """Rotates vec (..., 3) from the frame of quat (..., 4, wxyz) into the parent (world) frame."""
-    xp = _xp(quat, vec)
+    xp = namespace(quat, vec)
     quat, vec = xp.asarray(quat), xp.asarray(vec)
     w, u = quat[..., :1], quat[..., 1:]
     t = 2.0 * _cross(xp, u, vec)
@@ -49,7 +46,7 @@ def quat_rotate(quat, vec):
 def quat_conj(quat):
     """The conjugate (inverse of a unit quaternion) of quat (..., 4, wxyz): the vector part negated,
     which is exact in floating point."""
-    xp = _xp(quat)
+    xp = namespace(quat)
     quat = xp.asarray(quat)
     return quat * xp.asarray(_CONJ, dtype=quat.dtype)
 
@@ -61,7 +58,7 @@ def quat_rotate_inverse(quat, vec):
 
 def quat_mul(a, b):
     """Hamilton product a * b of wxyz quaternions (..., 4): rotate by b, then by a."""
-    xp = _xp(a, b)
+    xp = namespace(a, b)
     a, b = xp.asarray(a), xp.asarray(b)
     aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
     bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
