@@ -73,48 +73,10 @@ def evaluate_tiles(
         )
     type_idx = np.repeat([spec.types.index(t) for t in types], len(levels) * envs_per_tile)
     level_idx = np.tile(np.repeat(np.asarray(levels), envs_per_tile), len(types))
-    n = type_idx.size
     n_steps = int(round(seconds / env.ctrl_dt))
-    w = wrap_for_evaluation(env, cfg, n, seed, n_steps)
-    cmd = jnp.broadcast_to(jnp.asarray(command, jnp.float32), (n, 3))
     speed = float(np.linalg.norm(np.asarray(command, float)[:2]))
-
-    @jax.jit
-    def run(key):
-        k_reset, k_run = jax.random.split(key)
-        state = w.reset_on_tiles(jax.random.split(k_reset, n), jnp.asarray(type_idx), jnp.asarray(level_idx))
-        state = state.replace(info={**state.info, "command": cmd}, obs=env.with_command(state.obs, cmd))
-
-        def one(carry, k):
-            s, alive, fell, progress, sq, kept, t = carry
-            action, _ = policy(s.obs, k)
-            s = w.step(s, action)
-            m = s.metrics
-            # along the command (vx, 0, 0): the body-frame vx, capped at the command's speed
-            vx_along = jnp.clip(m["forward_speed"], 0.0, speed)
-            progress = progress + jnp.where(alive, vx_along * env.ctrl_dt, 0.0)
-            keep = alive & (t * env.ctrl_dt >= SETTLE_S)
-            err = jnp.stack([m["vx_sq_err"], m["vy_sq_err"], m["yaw_rate_sq_err"]], -1)
-            sq = sq + jnp.where(keep[:, None], err, 0.0)
-            kept = kept + keep
-            fell = fell | (alive & (m["fall"] > 0))
-            alive = alive & (s.done == 0)
-            s = s.replace(info={**s.info, "command": cmd}, obs=env.with_command(s.obs, cmd))
-            return (s, alive, fell, progress, sq, kept, t + 1), None
-
-        init = (
-            state,
-            jnp.ones(n, bool),
-            jnp.zeros(n, bool),
-            jnp.zeros(n),
-            jnp.zeros((n, 3)),
-            jnp.zeros(n),
-            0,
-        )
-        (_, _, fell, progress, sq, kept, _), _ = jax.lax.scan(one, init, jax.random.split(k_run, n_steps))
-        return fell, progress, sq, kept
-
-    fell, progress, sq, kept = (np.asarray(a) for a in run(jax.random.PRNGKey(seed)))
+    out = run_trials(env, cfg, policy, type_idx, level_idx, command, n_steps, seed)
+    fell, progress, sq, kept = (out[k] for k in ("fell", "progress", "sq", "kept"))
     commanded = speed * seconds
     success = ~fell & ((progress >= SUCCESS_SHARE * commanded) | (commanded <= 0))
     rows = []
@@ -137,6 +99,59 @@ def evaluate_tiles(
                 }
             )
     return rows
+
+
+def run_trials(env, cfg, policy, type_idx, level_idx, command, n_steps: int, seed: int, record=None) -> dict:
+    """The trials of `evaluate_tiles`, jitted: robot i on tile (type_idx[i], level_idx[i]) of env
+    (built from cfg = tiles_env_config(...)), holding `command` for n_steps steps, in the training
+    wrappers (wrappers.wrap_for_evaluation, keys from seed). -> arrays: "fell" (n,), "progress"
+    (n,) the distance along the command [m] (the body-frame vx capped at the command's speed, until
+    the first episode ends), "sq" (n, 3) the summed squared vx, vy, yaw-rate errors and "kept" (n,)
+    the steps summed (after SETTLE_S, before the end), and with `record(before, after, alive)` (the
+    wrapped states around a step, (n,) bool) its outputs stacked over the steps as "record"."""
+    n = len(type_idx)
+    w = wrap_for_evaluation(env, cfg, n, seed, n_steps)
+    cmd = jnp.broadcast_to(jnp.asarray(command, jnp.float32), (n, 3))
+    speed = float(np.linalg.norm(np.asarray(command, float)[:2]))
+
+    @jax.jit
+    def run(key):
+        k_reset, k_run = jax.random.split(key)
+        state = w.reset_on_tiles(jax.random.split(k_reset, n), jnp.asarray(type_idx), jnp.asarray(level_idx))
+        state = state.replace(info={**state.info, "command": cmd}, obs=env.with_command(state.obs, cmd))
+
+        def one(carry, k):
+            s, alive, fell, progress, sq, kept, t = carry
+            action, _ = policy(s.obs, k)
+            before, s = s, w.step(s, action)
+            m = s.metrics
+            # along the command (vx, 0, 0): the body-frame vx, capped at the command's speed
+            vx_along = jnp.clip(m["forward_speed"], 0.0, speed)
+            progress = progress + jnp.where(alive, vx_along * env.ctrl_dt, 0.0)
+            keep = alive & (t * env.ctrl_dt >= SETTLE_S)
+            err = jnp.stack([m["vx_sq_err"], m["vy_sq_err"], m["yaw_rate_sq_err"]], -1)
+            sq = sq + jnp.where(keep[:, None], err, 0.0)
+            kept = kept + keep
+            fell = fell | (alive & (m["fall"] > 0))
+            out = None if record is None else record(before, s, alive)
+            alive = alive & (s.done == 0)
+            s = s.replace(info={**s.info, "command": cmd}, obs=env.with_command(s.obs, cmd))
+            return (s, alive, fell, progress, sq, kept, t + 1), out
+
+        init = (
+            state,
+            jnp.ones(n, bool),
+            jnp.zeros(n, bool),
+            jnp.zeros(n),
+            jnp.zeros((n, 3)),
+            jnp.zeros(n),
+            0,
+        )
+        (_, _, fell, progress, sq, kept, _), rec = jax.lax.scan(one, init, jax.random.split(k_run, n_steps))
+        out = {"fell": fell, "progress": progress, "sq": sq, "kept": kept}
+        return out if record is None else {**out, "record": rec}
+
+    return jax.tree.map(np.asarray, run(jax.random.PRNGKey(seed)))
 
 
 def difficulty(spec, kind: str, level: int) -> dict:

@@ -24,8 +24,8 @@ from quadson_mjx import training
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.quat import quat_to_rpy
-from quadson_mjx.tiles_eval import SETTLE_S, difficulty, tiles_env_config
-from quadson_mjx.wrappers import SUCCESS_SHARE, wrap_for_evaluation
+from quadson_mjx.tiles_eval import SETTLE_S, difficulty, run_trials, tiles_env_config
+from quadson_mjx.wrappers import SUCCESS_SHARE
 
 TILES = [  # (type, level)
     ("flat", 0),
@@ -45,50 +45,29 @@ env = LocomotionEnv(cfg)
 spec = env.tiles
 type_idx = np.repeat([spec.types.index(t) for t, _ in TILES], PER_TILE)
 level_idx = np.repeat([lv for _, lv in TILES], PER_TILE)
-n, n_steps = type_idx.size, int(round(SECONDS / env.ctrl_dt))
-w = wrap_for_evaluation(env, cfg, n, SEED, n_steps)
-cmd = jnp.broadcast_to(jnp.asarray(COMMAND, jnp.float32), (n, 3))
+n_steps = int(round(SECONDS / env.ctrl_dt))
 speed = float(np.hypot(*COMMAND[:2]))
 feet = env._foot_geoms
 force_max = jnp.asarray(env.sys.actuator_forcerange[:, 1])
 
 
-@jax.jit
-def run(key):
-    k_reset, k_run = jax.random.split(key)
-    state = w.reset_on_tiles(jax.random.split(k_reset, n), jnp.asarray(type_idx), jnp.asarray(level_idx))
-    state = state.replace(info={**state.info, "command": cmd}, obs=env.with_command(state.obs, cmd))
-
-    def one(carry, k):
-        s, alive, fell, progress = carry
-        before = s.pipeline_state.geom_xpos[:, feet]  # (n, 4, 3)
-        touch_before = jax.vmap(env.foot_contact)(s.pipeline_state)
-        action, _ = policy(s.obs, k)
-        s = w.step(s, action)
-        m = s.metrics
-        progress = progress + jnp.where(alive, jnp.clip(m["forward_speed"], 0.0, speed) * env.ctrl_dt, 0.0)
-        fell = fell | (alive & (m["fall"] > 0))
-        d = s.pipeline_state
-        touch = jax.vmap(env.foot_contact)(d)
-        slip = jnp.linalg.norm((d.geom_xpos[:, feet] - before)[..., :2], axis=-1) / env.ctrl_dt
-        out = {
-            "alive": alive,
-            "vx": m["forward_speed"],
-            "ik_invalid": m["ik_invalid_legs"],
-            "sat": jnp.abs(d.actuator_force) >= SATURATED * force_max,
-            "slip": jnp.where(touch & touch_before, slip, jnp.nan),
-            "pitch": jax.vmap(quat_to_rpy)(d.qpos[:, 3:7])[:, 1],
-        }
-        alive = alive & (s.done == 0)
-        s = s.replace(info={**s.info, "command": cmd}, obs=env.with_command(s.obs, cmd))
-        return (s, alive, fell, progress), out
-
-    init = (state, jnp.ones(n, bool), jnp.zeros(n, bool), jnp.zeros(n))
-    (_, _, fell, progress), trace = jax.lax.scan(one, init, jax.random.split(k_run, n_steps))
-    return fell, progress, trace
+def record(before, after, alive):
+    """Per step: what the table below reports, for each robot."""
+    d0, d = before.pipeline_state, after.pipeline_state
+    touch = jax.vmap(env.foot_contact)(d) & jax.vmap(env.foot_contact)(d0)
+    slip = jnp.linalg.norm((d.geom_xpos[:, feet] - d0.geom_xpos[:, feet])[..., :2], axis=-1) / env.ctrl_dt
+    return {
+        "alive": alive,
+        "vx": after.metrics["forward_speed"],
+        "ik_invalid": after.metrics["ik_invalid_legs"],
+        "sat": jnp.abs(d.actuator_force) >= SATURATED * force_max,
+        "slip": jnp.where(touch, slip, jnp.nan),
+        "pitch": jax.vmap(quat_to_rpy)(d.qpos[:, 3:7])[:, 1],
+    }
 
 
-fell, progress, trace = jax.tree.map(np.asarray, run(jax.random.PRNGKey(SEED)))
+out = run_trials(env, cfg, policy, type_idx, level_idx, COMMAND, n_steps, SEED, record)
+fell, progress, trace = out["fell"], out["progress"], out["record"]
 late = (np.arange(n_steps)[:, None] * env.ctrl_dt >= SETTLE_S) & trace["alive"]  # (T, n)
 commanded = speed * SECONDS
 print(
