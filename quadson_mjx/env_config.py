@@ -60,6 +60,7 @@ ENV_KEYS_ADDED = {
     "reward.weights.contact_pattern": 0.0,
     "reward.weights.termination": 0.0,
     "reward.weights.yaw_rate_error_l2": 0.0,
+    "reward.weights.swing_touch": 0.0,
     "reward.target_gait_speed": False,
     "gait_scale.cycle_s": 1.0,
     "gait_scale.step_length_m": 1.0,

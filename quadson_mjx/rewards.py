@@ -102,6 +102,16 @@ def contact_pattern(contact, stance_near):
     return jnp.all(agree, axis=-1).astype(jnp.float32)
 
 
+def swing_touch(contact, stance_near):
+    """Number of feet on the ground (contact (..., 4) bool) that the phase table has in swing at the
+    control step before, at and after this one (stance_near (..., 3, 4) bool), in [0, 4]: the touches
+    that the pattern match within one step counts as misses, each foot counted. contact_pattern
+    pays nothing for a step with one such touch or with four; this term charges every foot that uses
+    the ground in its swing (a bound policy's mid-swing supports, results/gaits/finetune/README.md)."""
+    swing = ~jnp.any(stance_near, axis=-2)
+    return jnp.sum((contact & swing).astype(jnp.float32), axis=-1)
+
+
 def locomotion_terms(
     r,
     forward_target,
@@ -140,6 +150,7 @@ def locomotion_terms(
         "ang_vel_xy_l2": ang_vel_xy_l2(ang_vel),
         "contact_phase": contact_phase(contact, stance),
         "contact_pattern": contact_pattern(contact, stance_near),
+        "swing_touch": swing_touch(contact, stance_near),
         "termination": jnp.asarray(fallen, jnp.float32),
     }
 

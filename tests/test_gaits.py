@@ -556,6 +556,26 @@ def test_contact_pattern_reward_is_the_evaluations_one_step_match():
     assert float(rewards.contact_pattern(lone, jnp.zeros((3, 4), bool))) == 0.0
 
 
+def test_swing_touch_counts_the_feet_that_miss_the_pattern_by_touching():
+    # the reward (jitted over a batch) against the evaluation's per-foot match: a foot on the ground
+    # that misses the table within one step is a touch in swing; a lifted foot that misses is not
+    rng = np.random.default_rng(4)
+    contact = rng.random((300, 4)) < 0.5
+    stance = rng.random((300, 4)) < 0.6
+    agree = gait_eval.tolerant_agreement(contact, stance, 1)[1:-1]
+    want = (contact[1:-1] & ~agree).sum(axis=-1).astype(np.float32)
+    near = np.stack([stance[:-2], stance[1:-1], stance[2:]], axis=1)
+    got = jax.jit(jax.vmap(rewards.swing_touch))(jnp.asarray(contact[1:-1]), jnp.asarray(near))
+    np.testing.assert_array_equal(np.asarray(got), want)
+    assert set(np.unique(want)) >= {0.0, 1.0, 2.0}  # none, one and two touches occur
+    lifted_misses = (~contact[1:-1] & ~agree).sum()
+    assert lifted_misses > 0  # a foot in the air during stance misses the pattern but costs nothing here
+    # by hand: the table in swing all around, FL and RR down -> 2; FL's stance one step later -> 1
+    feet = jnp.array([True, False, False, True])
+    assert float(rewards.swing_touch(feet, jnp.zeros((3, 4), bool))) == 2.0
+    assert float(rewards.swing_touch(feet, jnp.zeros((3, 4), bool).at[2, 0].set(True))) == 1.0
+
+
 def _weighted_reward(cfg, rpy):
     """The weighted reward of one step (as env.step sums it) at base attitude rpy, the rest fixed."""
     terms = rewards.locomotion_terms(
