@@ -57,6 +57,8 @@ def old_script_config(robot, env_preset, terrain, gait, gait_action):
 # their old values) is the task's config with these overrides.
 BOUND_WIDE = ["randomization.mass_scale=0.85,1.25", "randomization.base_com_shift_m=-0.02,0.03"]
 BOUND_WEIGHTS = ["reward.weights.contact_pattern=8.0", "reward.weights.forward_velocity_exp=2.0"]
+BOUND_SWING = [*BOUND_WIDE, "reward.weights.contact_pattern=8.0", "reward.weights.forward_velocity_exp=3.0",
+               "reward.weights.swing_touch=-2.0"]  # fmt: skip
 COMMITTED_RUNS = {
     # trained before the robust recipe observed the robot's sensors: its true_state twin
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
@@ -81,9 +83,13 @@ COMMITTED_RUNS = {
         ],
     ),
     "results/gaits/before_finetune/pace": ("QuadsonGaitPace", []),
-    # fine-tuned in three steps (--init-from): wider mass and CoM ranges (finetune/bound_wide),
-    # more steps (finetune/bound_wide_more), then the pattern and forward terms doubled (bound)
-    "results/gaits/bound": ("QuadsonGaitBound", [*BOUND_WIDE, *BOUND_WEIGHTS]),
+    # fine-tuned in five steps (--init-from): wider mass and CoM ranges (finetune/bound_wide),
+    # more steps (finetune/bound_wide_more), the pattern and forward terms doubled
+    # (finetune/bound_pat8_fwd2), a penalty on feet touching in swing with the forward term at 3
+    # (finetune/bound_swing_touch), more steps (bound)
+    "results/gaits/bound": ("QuadsonGaitBound", BOUND_SWING),
+    "results/gaits/finetune/bound_swing_touch": ("QuadsonGaitBound", BOUND_SWING),
+    "results/gaits/finetune/bound_pat8_fwd2": ("QuadsonGaitBound", [*BOUND_WIDE, *BOUND_WEIGHTS]),
     "results/gaits/finetune/bound_wide": ("QuadsonGaitBound", BOUND_WIDE),
     "results/gaits/finetune/bound_wide_more": ("QuadsonGaitBound", BOUND_WIDE),
     "results/gaits/before_finetune/bound": ("QuadsonGaitBound", []),
