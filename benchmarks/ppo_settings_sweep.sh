@@ -1,13 +1,17 @@
 #!/usr/bin/env bash
 # Sample efficiency of the main job under PPO settings: every variant runs `python train/ppo_mjx.py`
 # with its overrides, all at once on one GPU (a share of its memory each), 40M steps with an
-# evaluation every 4M, so what compares is the environment steps to the first evaluation at or over
-# 0.45 m/s and the speed at equal steps. Their wall-clock times are not comparable (the runs share
-# the GPU); time a chosen variant alone with benchmarks/time_to_policy.py.
+# evaluation every 4M (STEPS and EVALS in the environment change the 40M and the 11 evaluations),
+# so what compares is the environment steps to the first evaluation at or over 0.45 m/s and the
+# speed at equal steps. Their wall-clock times are not comparable (the runs share the GPU); time a
+# chosen variant alone with benchmarks/time_to_policy.py.
 # Output: OUT_DIR/sweep.json (benchmarks/time_to_policy.py's records) and OUT_DIR/<name>.log.
+# Variants after OUT_DIR ("NAME:TRAIN ARGS" each) replace the default five.
 #   bash benchmarks/ppo_settings_sweep.sh benchmarks/results/ppo_settings_h200
+#   bash benchmarks/ppo_settings_sweep.sh OUT "preset:" "lr_1e-3:--ppo.learning_rate=0.001"
 set -u
-out=${1:?usage: ppo_settings_sweep.sh OUT_DIR}
+out=${1:?usage: ppo_settings_sweep.sh OUT_DIR [NAME:ARGS ...]}
+shift
 mkdir -p "$out"
 here=$(cd "$(dirname "$0")" && pwd)
 variants=(
@@ -17,6 +21,7 @@ variants=(
   "lr_1e-3:--ppo.learning_rate=0.001"
   "envs_4096:--ppo.num_envs=4096 --ppo.batch_size=512"
 )
+[ $# -gt 0 ] && variants=("$@")
 export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.18}
 pids=()
 for v in "${variants[@]}"; do
@@ -24,7 +29,7 @@ for v in "${variants[@]}"; do
   args=${v#*:}
   # shellcheck disable=SC2086  # args holds several words
   python3 "$here/time_to_policy.py" --name "$name" --out "$out/$name.json" --log "$out/$name.log" -- \
-    --ppo.num_timesteps=40000000 --ppo.num_evals=11 $args > "$out/$name.summary" 2>&1 &
+    --ppo.num_timesteps="${STEPS:-40000000}" --ppo.num_evals="${EVALS:-11}" $args > "$out/$name.summary" 2>&1 &
   pids+=($!)
 done
 for p in "${pids[@]}"; do wait "$p"; done
