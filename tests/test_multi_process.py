@@ -239,3 +239,40 @@ def test_regression_signal_to_one_process_stops_both(tmp_path):
         assert "interrupted" in out and "Terminating process" not in err, (
             f"p{i}:\n{out[-2000:]}\n{err[-2000:]}"
         )
+
+
+# Runs the training command with a SIGTERM sent to itself after jax.distributed.initialize and
+# before training.train installs its own handlers: the moment a scheduler's preemption can land
+# while a run builds its configs and environments.
+_SIGNAL_BEFORE_TRAIN = """
+import os, signal, sys, time
+from quadson_mjx import training
+from quadson_mjx.cli import train as cli
+real = training.train
+def train(*args, **kwargs):
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(0.5)
+    return real(*args, **kwargs)
+training.train = train
+sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+def test_regression_sigterm_before_the_training_loop_stops_a_distributed_run(tmp_path):
+    # jax.distributed.initialize sets a SIGTERM handler of its own (a preemption notifier) that
+    # only records the signal: a SIGTERM that came between joining the run and the training loop
+    # was swallowed and the run trained to its end (exit 0; seen when a loaded machine was slow to
+    # start the loop). Now the command defers it from the moment it joined: one process of a
+    # one-process jax.distributed run stops at the loop's first safe point like on Ctrl-C.
+    cwd, logs = tmp_path / "p0", tmp_path / "logs"
+    cwd.mkdir()
+    logs.mkdir()
+    args = ["--coordinator", f"127.0.0.1:{_free_port()}", "--num-processes", "1", "--process-id", "0"]
+    cmd = [sys.executable, "-c", _SIGNAL_BEFORE_TRAIN, *RUN, *args, "--run-dir", str(cwd / "run")]
+    with open(logs / "p0.out", "w") as out, open(logs / "p0.err", "w") as err:
+        proc = subprocess.Popen([*cmd, "--no-compile-cache"], cwd=cwd, env=_env(1), stdout=out, stderr=err)
+    rc, out, err = _finish(proc, logs, "p0", timeout=300)
+    assert rc == 130, f"exit {rc}\n{out[-2000:]}\n{err[-2000:]}"
+    assert "SIGTERM: stopping at the next safe point" in err, err[-2000:]
+    assert "interrupted: the log" in out and "done in" not in out, out[-2000:]
+    assert not list((cwd / "run" / "checkpoints").glob("*.npz")), "it trained before stopping"

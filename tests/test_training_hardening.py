@@ -537,7 +537,7 @@ def test_second_signal_calls_the_emergency_exit_at_once(monkeypatch):
 
     monkeypatch.setattr(os, "_exit", fake_exit)
     before = signal.getsignal(signal.SIGINT)  # SIG_IGN where the suite runs in the background
-    stop = monitor._Stop(emergency=closed.append)
+    stop = monitor.SignalStop(emergency=closed.append)
     with stop.installed():
         os.kill(os.getpid(), signal.SIGINT)
         deadline = time.monotonic() + 10

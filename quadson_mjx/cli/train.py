@@ -146,15 +146,15 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-def start_distributed(args) -> None:
+def start_distributed(args) -> bool:
     """Joins a multi-process run (jax.distributed) when the flags ask for one: --coordinator with
     --num-processes and --process-id, or --distributed (the cluster's environment: SLURM, Open MPI,
     as jax.distributed detects them). CPU devices talk through gloo (jax's default on the CPU has no
-    collectives across processes)."""
+    collectives across processes). -> whether it joined one."""
     if args.coordinator is None and not args.distributed:
         if args.num_processes != 1 or args.process_id != 0:
             raise UsageError("--num-processes and --process-id need --coordinator HOST:PORT")
-        return
+        return False
     if args.coordinator is not None and args.distributed:
         raise UsageError("--distributed takes the coordinator from the cluster: remove --coordinator")
     if args.coordinator is not None and not 0 <= args.process_id < args.num_processes:
@@ -182,6 +182,7 @@ def start_distributed(args) -> None:
         where = "--distributed (SLURM, Open MPI)" if args.distributed else f"--coordinator {args.coordinator}"
         raise UsageError(f"cannot join the multi-process run through {where}: {first}") from None
     fold_runtime_fatal_errors(f"process {jax.process_index()} of {jax.process_count()}")
+    return True
 
 
 # Run as a child process that reads this process's stderr (see fold_runtime_fatal_errors).
@@ -298,7 +299,19 @@ def _main(argv) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     if not args.no_compile_cache:
         training.enable_compilation_cache(args.compile_cache)
-    start_distributed(args)
+    if not start_distributed(args):
+        return _run(args, overrides, None)
+    # jax.distributed.initialize has set a SIGTERM handler of its own (a preemption notifier that
+    # records the signal and lets the process run on: a scheduler's SIGTERM went unheard and the run
+    # trained to its end). From here both signals are deferred to the training loop's first safe
+    # point, where the other processes learn of the stop too.
+    stop = training.SignalStop()
+    with stop.installed():
+        return _run(args, overrides, stop)
+
+
+def _run(args, overrides, stop) -> int:
+    """Builds or loads the run's configs and trains; `stop`: see training.train."""
     primary = jax.process_index() == 0  # the process that writes the run directory
     if args.resume and args.init_from:
         raise UsageError("--resume continues a run, --init-from starts a new one: give one of them")
@@ -363,7 +376,7 @@ def _main(argv) -> int:
     t0 = time.monotonic()
     try:
         _, _, metrics = training.train(
-            env_cfg, ppo_cfg, run_dir, resume=bool(args.resume), init_from=args.init_from
+            env_cfg, ppo_cfg, run_dir, resume=bool(args.resume), init_from=args.init_from, stop=stop
         )
     except (ValueError, FileExistsError, FileNotFoundError) as e:
         # a damaged checkpoint or state file met on resume, a directory taken in the meantime

@@ -23,7 +23,13 @@ from quadson_mjx.training.checkpoints import (
 )
 from quadson_mjx.training.guards import OutOfMemory, TrainingDiverged
 from quadson_mjx.training.loop import train
-from quadson_mjx.training.monitor import Progress, StopRequested, XlaCompilations, enable_compilation_cache
+from quadson_mjx.training.monitor import (
+    Progress,
+    SignalStop,
+    StopRequested,
+    XlaCompilations,
+    enable_compilation_cache,
+)
 from quadson_mjx.training.networks import make_networks, params_template
 from quadson_mjx.training.presets import (
     POLICY_DISTRIBUTIONS,

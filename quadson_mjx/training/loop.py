@@ -48,7 +48,7 @@ from quadson_mjx.training.checkpoints import (
     save_checkpoint,
     training_state_path,
 )
-from quadson_mjx.training.monitor import Progress, XlaCompilations, _Stop
+from quadson_mjx.training.monitor import Progress, SignalStop, XlaCompilations
 from quadson_mjx.training.networks import make_networks
 from quadson_mjx.training.presets import check_ppo_config, epoch_steps, local_devices_to_use
 from quadson_mjx.training.runs import (
@@ -71,6 +71,7 @@ def train(
     progress_stream=sys.stdout,
     on_eval: Callable[[int, dict], None] | None = None,
     init_from: str | Path | None = None,
+    stop: SignalStop | None = None,
 ):
     """Trains with brax PPO and writes the run directory. Returns (make_policy, params, metrics).
 
@@ -99,8 +100,11 @@ def train(
     checkpoint. A signal that arrives during an XLA compilation (tens of seconds on the first epoch
     and evaluation) or a training epoch takes effect when it ends. Stopping raises StopRequested
     (a KeyboardInterrupt) after closing the log and saving the state. A second signal, even during
-    a compilation, ends the process at once (os._exit(130), see monitor._Stop) after closing the
-    log; the run stays resumable from its last checkpoint.
+    a compilation, ends the process at once (os._exit(130), see monitor.SignalStop) after closing the
+    log; the run stays resumable from its last checkpoint. `stop`: a SignalStop the caller has
+    installed already, whose signals (received before this call) count as the run's own; else one is
+    installed for the call. jax.distributed.initialize sets a SIGTERM handler of its own that only
+    records the signal, so a multi-process caller installs one right after it (see cli/train.py).
 
     One process at a time trains in a run directory: it holds run_dir/.lock (runs.run_dir_lock);
     another train or resume on it raises RunDirInUse naming the holder's pid. A loss, gradient or
@@ -122,8 +126,9 @@ def train(
     CPU cores: a second 'test'-preset training 42 s -> 13 s).
     """
     jax.clear_caches()
-    stop = _Stop()
-    with stop.installed(), contextlib.ExitStack() as held:
+    owned = stop is None
+    stop = SignalStop() if owned else stop
+    with stop.installed() if owned else contextlib.nullcontext(), contextlib.ExitStack() as held:
         return _train(
             env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop, held, init_from
         )
@@ -148,7 +153,7 @@ def _remove_if_unused(run_dir: Path) -> None:
             run_dir.rmdir()
 
 
-def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: _Stop, held, init_from):
+def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: SignalStop, held, init_from):
     from brax.training.agents.ppo import train as ppo
 
     from quadson_mjx import compat

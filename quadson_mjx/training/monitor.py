@@ -122,7 +122,7 @@ class StopRequested(KeyboardInterrupt):
 
 
 @dataclasses.dataclass
-class _Stop:
+class SignalStop:
     """Signals deferred to a flag that the training loop checks at safe points.
 
     Python runs a signal handler only between bytecodes of the main thread, so while the main
