@@ -203,8 +203,9 @@ def _fake_train(monkeypatch):
     class Stop(Exception):
         pass
 
-    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None):
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None):
         assert init_from is None  # a new run from its task, not a fine-tune
+        assert stop is None  # one process: train installs its own signal handlers
         seen["env_cfg"] = env_cfg
         raise Stop
 
