@@ -28,22 +28,7 @@ import numpy as np
 
 from quadson_mjx import gait
 from quadson_mjx import rollout as R
-
-FORCE_THRESHOLD_N = 1.0  # a foot carrying less than ~3 % of its share of the ~3 kg robot is "up"
-
-
-def tolerant_agreement(contact: np.ndarray, stance: np.ndarray, tolerance: int) -> np.ndarray:
-    """contact, stance: (T, ...) bool -> (T, ...) bool: contact[t] equals stance[t'] for some
-    |t' - t| <= tolerance (t' inside the array): each transition may be early or late by up to
-    `tolerance` steps."""
-    contact = np.asarray(contact, bool)
-    stance = np.asarray(stance, bool)
-    ok = contact == stance
-    n = contact.shape[0]
-    for d in range(1, tolerance + 1):
-        ok[d:] |= contact[d:] == stance[:-d]
-        ok[: n - d] |= contact[: n - d] == stance[d:]
-    return ok
+from quadson_mjx.gait_pattern import FORCE_THRESHOLD_N, tolerant_agreement  # noqa: F401 (also this module's API)
 
 
 def first_episode_mask(done: np.ndarray) -> np.ndarray:

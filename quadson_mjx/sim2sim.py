@@ -8,9 +8,18 @@ timestep, full contacts, another servo model with latency, IMU and encoder noise
 
 Per run (one policy, terrain, command schedule, seed): falls (the env's termination: roll or pitch
 beyond max_tilt_rad, the base below min_height_m above the ground under it, the base box's bottom
-in the ground), tracking RMS of vx, vy (body frame) and yaw rate against the command over every
-control step after the first second (not smoothed), steps with an invalid IK leg. A fall ends the
-run. `summarize` pools runs per condition: the RMS over all their steps, falls as a share of runs.
+in the ground), tracking RMS of vx, vy (body frame) and yaw rate against the command and the mean
+body vx over every control step after the first second (not smoothed), steps with an invalid IK
+leg, and the feet's contact pattern against the gait's phase table over the same steps
+(gait_pattern: a foot is down above 1 N of normal force; the table at the loop's phase clock after
+the step; exact and within one control step, as the MJX gait evaluation counts it). A fall ends
+the run. `summarize` pools runs per condition: the RMS over all their steps, falls as a share of
+runs.
+
+Command sets: the 13-command sweep, the step schedule, or "gait": the policy's own gait command,
+forward at its gait's speed (DeployLoop.gait_command). A policy trained without commands (the
+five gait policies) walks only at that speed and does not observe a command: it runs the "gait"
+set only (suite_jobs refuses the others).
 A policy that observes the base velocity (true_state) gets it from `velocity_source`: "true" (the
 simulator's), "zero" (no estimator) or "command" (the command as the estimate); a sensor-only
 policy gets none. Commands beyond the policy's trained command range are clipped to it, as
@@ -26,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quadson_mjx import deploy, obs_spec
+from quadson_mjx import deploy, gait_pattern, obs_spec
 from quadson_mjx import sim2sim_plant as P
 from quadson_mjx.quat import quat_mul, quat_to_rpy
 from quadson_mjx.robots import get_robot
@@ -53,6 +62,8 @@ SWEEP = (
     (0.4, -0.1, 0.2),
 )
 STEP_SCHEDULE = ((0.0, 0.0, 0.0), (0.4, 0.0, 0.0), (0.0, 0.0, 0.0), (-0.2, 0.0, 0.0))  # 5 s each
+GAIT = "gait"  # the command set of the policy's own gait command (its schedule: None, see run_one)
+COMMAND_SETS = ("sweep", "step", "all", GAIT)
 DEFAULT_RANDOMIZATION = {
     "friction": (0.5, 1.2),
     "mass_scale": (0.85, 1.15),
@@ -66,9 +77,13 @@ def step_schedule(segment_s: float = 5.0) -> tuple[str, tuple]:
     return ("step", tuple((i * segment_s, c) for i, c in enumerate(STEP_SCHEDULE)))
 
 
-def schedules(which: str, seconds: float) -> list[tuple[str, tuple, float]]:
-    """which: "sweep" | "step" | "all" -> [(label, ((start_s, command), ...), duration_s)]: each
-    sweep command for `seconds`, the step schedule in four segments of seconds / 4."""
+def schedules(which: str, seconds: float) -> list[tuple[str, tuple | None, float]]:
+    """which: "sweep" | "step" | "all" | "gait" -> [(label, ((start_s, command), ...), duration_s)]:
+    each sweep command for `seconds`, the step schedule in four segments of seconds / 4; "gait" one
+    run of `seconds` whose schedule is None: the policy's gait command, which run_one takes from
+    the policy's deploy loop."""
+    if which == GAIT:
+        return [(GAIT, None, seconds)]
     out = []
     if which in ("sweep", "all"):
         out += [(f"cmd{i:02d}", ((0.0, c),), seconds) for i, c in enumerate(SWEEP)]
@@ -76,7 +91,7 @@ def schedules(which: str, seconds: float) -> list[tuple[str, tuple, float]]:
         label, sched = step_schedule(seconds / len(STEP_SCHEDULE))
         out.append((label, sched, seconds))
     if not out:
-        raise ValueError(f"unknown command set {which!r}: sweep, step or all")
+        raise ValueError(f"unknown command set {which!r}: {', '.join(COMMAND_SETS)}")
     return out
 
 
@@ -129,6 +144,22 @@ class LoopAdapter:
     @property
     def ctrl_dt(self) -> float:
         return float(self.env_config["ctrl_dt"])
+
+    @property
+    def tracks_commands(self) -> bool:
+        """The policy observes a command (else it was trained on its gait's own forward command)."""
+        return bool(self.env_config.get("command_tracking", False))
+
+    @property
+    def gait_command(self) -> tuple[float, float, float]:
+        """Forward at the gait's own speed: the command a policy without commands walked at."""
+        return tuple(float(x) for x in self.loop.gait_command)
+
+    def scheduled_stance(self) -> np.ndarray:
+        """(4,) bool: the gait's phase table puts each leg in stance at the loop's phase clock now
+        (after a step: its end, as the env's scheduled_stance of info["gait_progress"])."""
+        r = self.loop.config.robot
+        return r.leg_phases(self.loop.progress * r.gait.cycle_s, r.gait) < r.gait.duty
 
     def reset(self, readings: P.Readings) -> None:
         if self._reset_takes_motor:
@@ -203,7 +234,8 @@ def run_episode(
     plant.reset((0.0, 0.0), float(rng.uniform(-math.pi, math.pi)))
     adapter.reset(plant.read())
     n = int(round(duration_s / dt))
-    err, invalid, faults, fell, fall_t, off = [], 0, 0, False, None, False
+    err, vx, forces, stance = [], [], [], []
+    invalid, faults, fell, fall_t, off = 0, 0, False, None, False
     truth = plant.truth()
     for k in range(n):
         command = command_at(schedule, k * dt)
@@ -215,6 +247,9 @@ def run_episode(
         t = (k + 1) * dt
         if t > WARMUP_S + 1e-9:
             err.append([truth["lin_vel"][0], truth["lin_vel"][1], truth["ang_vel"][2]] - command)
+            vx.append(truth["lin_vel"][0])
+            forces.append(plant.foot_forces())
+            stance.append(adapter.scheduled_stance())
         invalid += int(not np.all(out.valid))
         faults += int(adapter.faulty(out))
         r, p, _ = truth["rpy"]
@@ -232,6 +267,7 @@ def run_episode(
             break
     e = np.asarray(err, np.float64).reshape(-1, 3)
     sq = np.sum(e * e, axis=0)
+    pattern = gait_pattern.pattern_counts(np.reshape(forces, (-1, 4)), np.reshape(stance, (-1, 4)))
     return {
         "fell": bool(fell),
         "fall_time_s": fall_t,
@@ -243,6 +279,11 @@ def run_episode(
         "vx_rms": rms(sq[0], len(e)),
         "vy_rms": rms(sq[1], len(e)),
         "yaw_rate_rms": rms(sq[2], len(e)),
+        "vx_sum": float(np.sum(vx)),  # for pooling runs
+        "vx_mean": float(np.mean(vx)) if vx else None,
+        **pattern,
+        "pattern": pattern["pattern_hits"] / len(e) if len(e) else None,
+        "pattern_1step": pattern["pattern_1step_hits"] / len(e) if len(e) else None,
         "invalid_ik_steps": invalid,
         "fault_steps": faults,
         "push_count": plant.pushes,
@@ -254,7 +295,8 @@ def run_one(job: dict) -> dict:
     t0 = time.perf_counter()
     adapter = LoopAdapter(job["policy"], job["velocity_source"])
     robot = get_robot(adapter.env_config.get("robot", "quadson"))
-    schedule = clip_schedule(job["schedule"], adapter.env_config)
+    schedule = job["schedule"] or ((0.0, adapter.gait_command),)
+    schedule = clip_schedule(schedule, adapter.env_config)
     seed = job["seed"]
     plant_seed = 1_000_003 * seed + 7919 * job["schedule_index"] + (17 if job["terrain"] == "stones" else 0)
     plant = make_plant(
@@ -310,7 +352,13 @@ def suite_jobs(
     jobs = []
     for pol in policies:
         name, path = pol if isinstance(pol, tuple) else (Path(pol).stem, pol)
-        observes = LoopAdapter(path).observes_velocity
+        adapter = LoopAdapter(path)
+        if which != GAIT and not adapter.tracks_commands:
+            raise ValueError(
+                f"policy {name} was trained without commands (it walks its gait at the gait's own "
+                f"speed and observes no command): run it with the gait command set, not {which!r}"
+            )
+        observes = adapter.observes_velocity
         for vs in velocity_sources if observes else ("true",):
             for terrain in terrains:
                 for si, (label, sched, dur) in enumerate(schedules(which, seconds)):

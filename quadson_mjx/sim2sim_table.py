@@ -16,14 +16,18 @@ def rms(sq_sum: float, n: int) -> float | None:
 GROUP_KEYS = ("policy_name", "velocity_source", "terrain", "randomize", "pushes", "latency_s")
 
 
+def _share(hits: float, n: int) -> float | None:
+    return hits / n if n else None
+
+
 def summarize(rows, by=GROUP_KEYS, split_step: bool = True) -> list[dict]:
-    """Pools runs per condition (and the step schedule apart from the sweep): runs, falls, fall
-    rate, RMS over every tracked step of the pooled runs, invalid-IK and fault steps."""
+    """Pools runs per condition (and the step schedule and the gait command apart from the sweep):
+    runs, falls, fall rate, RMS and mean vx over every tracked step of the pooled runs, the contact
+    pattern's share of those steps (exact and within one step), invalid-IK and fault steps."""
     groups: dict[tuple, list] = {}
     for r in rows:
-        key = tuple(r[k] for k in by) + (
-            (("step" if r["label"] == "step" else "sweep"),) if split_step else ()
-        )
+        commands = r["label"] if r["label"] in ("step", "gait") else "sweep"
+        key = tuple(r[k] for k in by) + ((commands,) if split_step else ())
         groups.setdefault(key, []).append(r)
     out = []
     for key, rs in groups.items():
@@ -40,6 +44,9 @@ def summarize(rows, by=GROUP_KEYS, split_step: bool = True) -> list[dict]:
                 "vx_rms": rms(sq[0], n),
                 "vy_rms": rms(sq[1], n),
                 "yaw_rate_rms": rms(sq[2], n),
+                "vx_mean": _share(sum(r["vx_sum"] for r in rs), n),
+                "pattern": _share(sum(r["pattern_hits"] for r in rs), n),
+                "pattern_1step": _share(sum(r["pattern_1step_hits"] for r in rs), n),
                 "invalid_ik_steps": sum(r["invalid_ik_steps"] for r in rs),
                 "fault_steps": sum(r["fault_steps"] for r in rs),
                 "steps": sum(r["steps"] for r in rs),
@@ -52,11 +59,13 @@ def format_table(
     summary,
     columns=("policy_name", "velocity_source", "terrain", "commands", "randomize", "pushes", "latency_s"),
 ) -> str:
-    """A plain-text table of summarize's rows."""
-    head = [*columns, "runs", "falls", "vx_rms", "vy_rms", "yaw_rms", "ik_inv"]
+    """A plain-text table of summarize's rows: the mean vx only for the gait command (a sweep's
+    commands differ), the contact pattern within one control step."""
+    head = [*columns, "runs", "falls", "vx_rms", "vy_rms", "yaw_rms", "vx_mean", "pattern", "ik_inv"]
     lines = [head]
     for s in summary:
         f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
+        pattern = "-" if s["pattern_1step"] is None else f"{100 * s['pattern_1step']:.1f}%"
         lines.append(
             [str(s.get(c, "")) for c in columns]
             + [
@@ -65,6 +74,8 @@ def format_table(
                 f(s["vx_rms"]),
                 f(s["vy_rms"]),
                 f(s["yaw_rate_rms"]),
+                f(s["vx_mean"] if s.get("commands") == "gait" else None),
+                pattern,
                 str(s["invalid_ik_steps"]),
             ]
         )

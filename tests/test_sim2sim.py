@@ -238,7 +238,7 @@ def test_true_state_policy_closed_loop_on_stones_writes_a_readable_mcap(exported
     assert summary[0]["runs"] == 1 and summary[0]["vx_rms"] == pytest.approx(row["vx_rms"])
 
 
-def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, capsys, tmp_path):
+def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, gait_policies, capsys, tmp_path):
     from quadson_mjx.cli.sim2sim import main
 
     path, _ = exported
@@ -249,6 +249,8 @@ def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, capsys, tmp_pat
         [str(path), "--terrain", "ice"],
         [str(path), "--seeds", "0"],
         [str(path), "--out", "/proc/version/x"],  # below a regular file: not creatable, even as root
+        [str(path), "--commands", "trot"],
+        [str(gait_policies["trot"])],  # trained without commands: the sweep is not its to run
     ]
     for argv in cases:
         assert main(argv) == 2, argv
@@ -267,3 +269,90 @@ def test_caramel_policy_runs_through_its_deploy_loop_in_the_plant(tmp_path):
     assert row["robot"] == "caramel" and row["steps"] == 75 and not row["fell"]
     assert row["commands"] == [[0.08, 0.0, 0.0]]  # 0.15 m/s clipped to Caramel's trained range
     assert all(math.isfinite(row[k]) for k in ("vx_rms", "vy_rms", "yaw_rate_rms"))
+
+
+@pytest.fixture(scope="module")
+def gait_policies(tmp_path_factory):
+    """The committed trot and bound policies (trained without commands), exported to ONNX."""
+    from quadson_mjx import export
+
+    out = tmp_path_factory.mktemp("sim2sim_gaits")
+    return {g: export.export_run(f"results/gaits/{g}", out / f"{g}.onnx") for g in ("trot", "bound")}
+
+
+def test_phase_table_of_the_loop_by_hand(gait_policies):
+    # seed 000's bound: front legs at phase offset 0, hind legs at 0.5, duty 0.4 (LEGS order FL, FR,
+    # RL, RR); the table at a fraction of the cycle, whatever the cycle's length
+    adapter = S.LoopAdapter(gait_policies["bound"])
+    for progress, stance in (
+        (0.2, [1, 1, 0, 0]),
+        (0.6, [0, 0, 1, 1]),
+        (0.45, [0, 0, 0, 0]),
+        (0.0, [1, 1, 0, 0]),
+    ):
+        adapter.loop.progress = progress
+        np.testing.assert_array_equal(
+            adapter.scheduled_stance(), np.array(stance, bool), err_msg=str(progress)
+        )
+
+
+def test_gait_policy_walks_its_gait_command_and_its_contact_pattern_is_counted(gait_policies):
+    path = gait_policies["trot"]
+    with pytest.raises(ValueError, match="trained without commands"):
+        S.suite_jobs([("trot", path)], terrains=("flat",), which="sweep", seconds=3.0, seeds=(0,))
+    (job,) = S.suite_jobs([("trot", path)], terrains=("flat",), which="gait", seconds=3.0, seeds=(0,))
+    row = S.run_one(job)
+    # the seed's trot: 12 cm per stance of 0.5 x 0.8 s -> 0.3 m/s forward, the command it trained on
+    assert row["commands"] == [[0.3, 0.0, 0.0]] and row["label"] == "gait"
+    assert row["steps"] == 150 and not row["fell"] and row["invalid_ik_steps"] == 0
+    assert row["pattern_steps"] == row["tracked_steps"] == 100  # every step after the first second
+    assert row["pattern_hits"] <= row["pattern_1step_hits"] <= 100 and row["foot_agree"] <= 400
+    # it trots in MuJoCo C as in MJX (measured 93 % within one step over 20 s) at about its speed
+    assert row["pattern_1step"] > 0.85 and 0.8 < row["vx_mean"] / 0.3 < 1.2
+    (pooled,) = S.summarize([row])
+    assert pooled["commands"] == "gait" and pooled["pattern_1step"] == row["pattern_1step"]
+    assert "gait" in S.format_table([pooled]) and f"{100 * row['pattern_1step']:.1f}%" in S.format_table(
+        [pooled]
+    )
+
+
+def test_pattern_counts_and_pooling_by_hand():
+    from quadson_mjx.gait_pattern import pattern_counts
+
+    # 4 steps; foot FL touches down one step late at step 1 (tolerated), RR is up at step 3 where
+    # the table has it down for the whole run (a miss either way)
+    stance = np.array([[0, 1, 1, 1], [1, 1, 1, 1], [1, 1, 1, 1], [1, 1, 1, 1]], bool)
+    force = np.where(stance, 10.0, 0.0)
+    force[1, 0] = 0.5  # below the 1 N threshold: up
+    force[3, 3] = 0.0
+    c = pattern_counts(force, stance)
+    assert c == {"pattern_steps": 4, "pattern_hits": 2, "pattern_1step_hits": 3, "foot_agree": 14}
+    with pytest.raises(ValueError, match="differ in shape"):
+        pattern_counts(force[:3], stance)
+    # pooled over runs by steps, not by runs; a gait run pools apart from the sweep
+    base = {k: "x" for k in S.GROUP_KEYS}
+    runs = [
+        {**base, "label": "gait", "tracked_steps": 4, "sq_err_sum": [0, 0, 0], "vx_sum": 1.2, "fell": False,
+         "off_field": False, "invalid_ik_steps": 0, "fault_steps": 0, "steps": 4, **c},
+        {**base, "label": "gait", "tracked_steps": 0, "sq_err_sum": [0, 0, 0], "vx_sum": 0.0, "fell": True,
+         "off_field": False, "invalid_ik_steps": 0, "fault_steps": 0, "steps": 1, "pattern_steps": 0,
+         "pattern_hits": 0, "pattern_1step_hits": 0, "foot_agree": 0},
+    ]  # fmt: skip
+    (pooled,) = S.summarize(runs)
+    assert pooled["commands"] == "gait" and pooled["falls"] == 1
+    assert (
+        pooled["pattern_1step"] == 0.75
+        and pooled["pattern"] == 0.5
+        and pooled["vx_mean"] == pytest.approx(0.3)
+    )
+
+
+def test_regression_run_line_of_a_run_that_fell_in_its_first_second():
+    # a run that fell before any tracked step has no RMS: the progress line printed a traceback
+    from quadson_mjx.cli.sim2sim import run_line
+
+    row = {"policy_name": "bound", "velocity_source": "none", "terrain": "flat", "label": "step", "seed": 0,
+           "fell": True, "fall_time_s": 0.84, "vx_rms": None, "vy_rms": None, "yaw_rate_rms": None,
+           "vx_mean": None, "pattern_1step": None, "invalid_ik_steps": 3, "wall_s": 0.7}  # fmt: skip
+    line = run_line(row)
+    assert "FELL at 0.84 s" in line and "rms vx - vy - yaw -" in line and "pattern -" in line

@@ -4,12 +4,16 @@ MCAP files for Foxglove and, on request, videos.
 
     quadson-sim2sim /tmp/old.onnx --velocity-source true,zero,command --seeds 3 --out runs/s2s
     quadson-sim2sim new.onnx old.onnx --terrain stones --randomize --pushes --latency-ms 60
+
+    quadson-sim2sim walk.onnx bound.onnx --commands gait --terrain flat   # gait policies
 (`python eval/sim2sim.py ...` runs the same command.)
 
 Each policy runs every command of --commands (the 13-command sweep, each for --seconds; the step
-schedule vx 0 -> 0.4 -> 0 -> -0.2 m/s in four segments of --seconds / 4) on each terrain, with
---seeds seeds (heading, sensor biases and noise, randomized model, pushes). A policy that observes
-the base velocity gets it from each --velocity-source; a sensor-only policy runs once. Writes
+schedule vx 0 -> 0.4 -> 0 -> -0.2 m/s in four segments of --seconds / 4; "gait": forward at the
+policy's gait speed for --seconds, the only set of a policy trained without commands) on each
+terrain, with --seeds seeds (heading, sensor biases and noise, randomized model, pushes). Every run
+reports falls, tracking RMS and the feet's contact pattern against the gait's phase table. A policy
+that observes the base velocity gets it from each --velocity-source; a sensor-only policy runs once. Writes
 OUT/summary.json (the command line, the plant's settings, one row per condition, one per run),
 OUT/mcap/*.mcap (the first seed's runs; --mcap all|none), OUT/video/*.mp4 with --video.
 Check a file: python -m quadson_mjx.mcap_check FILE --rollout. Bad input: one line, exit status 2.
@@ -44,7 +48,12 @@ def parse(argv):
         "policy", nargs="+", help="exported policy files (*.onnx or *.npz; python -m quadson_mjx.export)"
     )
     p.add_argument("--terrain", default="both", choices=("flat", "stones", "both"))
-    p.add_argument("--commands", default="all", choices=("sweep", "step", "all"))
+    p.add_argument(
+        "--commands",
+        default="all",
+        choices=S.COMMAND_SETS,
+        help="the command sweep, the step schedule, both (all), or the policy's gait command (gait)",
+    )
     p.add_argument(
         "--seconds", type=float, default=20.0, help="per sweep command; the step schedule's total [s]"
     )
@@ -86,9 +95,14 @@ def parse(argv):
                 f"policy {path}: a policy file is *.onnx or *.npz (python -m quadson_mjx.export)"
             )
         try:
-            S.LoopAdapter(path)
+            adapter = S.LoopAdapter(path)
         except (ValueError, KeyError) as e:
             raise UsageError(f"policy {path}: the deploy loop refuses it: {e}") from e
+        if a.commands != S.GAIT and not adapter.tracks_commands:
+            raise UsageError(
+                f"policy {path} was trained without commands (it walks its gait at the gait's own speed "
+                f"and observes no command): run it with --commands gait, not --commands {a.commands}"
+            )
     return a
 
 
@@ -125,14 +139,7 @@ def main(argv=None) -> int:
 
     def progress(done, total, row):
         if a.per_command:
-            status = f"FELL at {row['fall_time_s']:.2f} s" if row["fell"] else "ok"
-            print(
-                f"[{done}/{total}] {row['policy_name']} {row['velocity_source']} {row['terrain']} {row['label']} "
-                f"seed {row['seed']}: {status}, "
-                f"rms vx {row['vx_rms']:.3f} vy {row['vy_rms']:.3f} yaw {row['yaw_rate_rms']:.3f}, "
-                f"ik invalid {row['invalid_ik_steps']}, {row['wall_s']:.1f} s",
-                flush=True,
-            )
+            print(f"[{done}/{total}] {run_line(row)}", flush=True)
 
     rows = S.run_suite(policies, workers=a.workers, progress=progress, **kw)
     wall = time.perf_counter() - t0
@@ -161,6 +168,19 @@ def main(argv=None) -> int:
     write_text_atomic(out / "summary.json", json.dumps(result, indent=1, default=_jsonable) + "\n")
     print(f"wrote {out / 'summary.json'}")
     return 0
+
+
+def run_line(row: dict) -> str:
+    """One run in one line (a run that fell within the first second has no tracked step: '-')."""
+    f = lambda x, spec=".3f": "-" if x is None else format(x, spec)  # noqa: E731
+    status = f"FELL at {row['fall_time_s']:.2f} s" if row["fell"] else "ok"
+    pattern = "-" if row["pattern_1step"] is None else f"{100 * row['pattern_1step']:.1f}%"
+    return (
+        f"{row['policy_name']} {row['velocity_source']} {row['terrain']} {row['label']} seed {row['seed']}: "
+        f"{status}, rms vx {f(row['vx_rms'])} vy {f(row['vy_rms'])} yaw {f(row['yaw_rate_rms'])}, "
+        f"vx mean {f(row['vx_mean'])}, pattern {pattern}, ik invalid {row['invalid_ik_steps']}, "
+        f"{row['wall_s']:.1f} s"
+    )
 
 
 def _jsonable(x):
