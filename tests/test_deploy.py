@@ -110,6 +110,21 @@ def test_loop_motor_targets_equal_the_env_step_start_ramp_included(gait_action):
     assert_loop_targets_match_env(env, loop, np.array([0.25, -0.05, 0.3]))
 
 
+@pytest.mark.parametrize("name", ["walk", "trot", "pace", "bound", "gallop"])
+def test_committed_gait_policies_loop_targets_equal_their_envs(name):
+    # the five gait policies (trained without commands, scaled gait tables, 3 ticks of sensors):
+    # the loop's gait command is the env's fixed one, and its targets at it are the env's
+    from quadson_mjx import training
+
+    cfg, _ = training.load_run_config(ROOT / "results" / "gaits" / name)
+    env = LocomotionEnv(cfg)
+    loop = deploy.DeployLoop(_FixedPolicy(cfg, env.obs_spec.size, env.action_size))  # the actor's input
+    assert not cfg.command_tracking and loop.config.obs_spec == env.obs_spec
+    command, _ = env.sample_command(jax.random.PRNGKey(0))
+    np.testing.assert_allclose(loop.gait_command, np.asarray(command), rtol=0, atol=1e-6)
+    assert_loop_targets_match_env(env, loop, loop.gait_command)
+
+
 def test_loop_rejects_a_policy_of_another_shape():
     policy = _FixedPolicy(env_config(command_tracking=True), 29, 12)
     with pytest.raises(ValueError, match="32 and 12"):
