@@ -1,8 +1,10 @@
 """Which of the sim2sim plant's differences from training makes the randomized bound fall? The
 plant as eval/sim2sim.py builds it, then with one difference taken back at a time, then all of
-them: training's 4 ms timestep (the plant steps 2 ms), no servo deadband, no torque-speed limit
-(training's position servo has only its peak torque), feet-only contact (the plant lets every leg
-link touch the ground). Last, the plant as in sim2sim under the ranges of the committed MJX
+them: training's 4 ms timestep (the plant steps 2 ms), no servo deadband, no torque-speed limit (training's position servo has only its peak
+torque), feet-only contact (the plant lets every leg link touch the ground). Training's solver
+settings cannot be taken back in MuJoCo C: with 1 Newton iteration, 5 line-search iterations and
+the pyramidal cone (the plant: 100, 50, elliptic) the plant diverges within 0.1 s (NaN), with
+training's Euler integrator or the plant's implicit-fast. Last, the plant as in sim2sim under the ranges of the committed MJX
 evaluation (its `--randomization` flags: masses 0.85-1.15, CoM +-2 cm, motors 0.8-1.2, friction
 the config's 0.5-1.2), narrower than the bound's training ranges (masses to 1.25, CoM to +3 cm).
 The bound under its trained randomization ranges, 20 s at its gait's
@@ -18,6 +20,7 @@ import concurrent.futures as cf
 import dataclasses
 import multiprocessing as mp
 
+import mujoco
 import numpy as np
 
 from quadson_mjx import sim2sim as S
@@ -46,8 +49,6 @@ def run(args) -> dict:
     model = M.plant_model(robot, "flat", timestep_s=0.004 if "timestep_4ms" in parts else M.TIMESTEP_S)
     if "feet_only" in parts:
         feet = set(robot.foot_geoms())
-        import mujoco
-
         for g in range(model.ngeom):
             name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
             if model.geom_bodyid[g] != 0 and name not in feet:
