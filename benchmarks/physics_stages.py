@@ -6,8 +6,12 @@
 Models: Playground's feet-only Go1 (as `physics_vs_go1.py` loads it, sensors on, as Playground
 trains it) and each robot's training physics (`LocomotionEnv`'s model under the train script's
 FAST_PHYSICS: feet-only contact, no joint-limit rows, sensors off), plus --variants of Quadson's
-solver settings. For each model: N worlds are stepped 50 control steps from home with noisy
-position targets (as `physics_vs_go1.py`), so contacts and the closure are active; then every
+solver settings, and with --terrains Quadson's training model on the stone field ("rough") and
+the tiled ground ("tiles"), where the feet meet MJX's height-field collider instead of a plane
+(each foot sphere against the field's prisms under it, up to 4 contacts a foot: the rows "hfield
+prisms per foot" and ncon / nefc say how many). For each model: N worlds are stepped 50 control steps from home with noisy
+position targets (as `physics_vs_go1.py`; on a height field from where the env's reset puts the robot
+on the ground), so contacts and the closure are active; then every
 stage of MJX's step (the functions `mjx.step` calls, in its order) is timed alone on that batch:
 one jit running the stage --repeat times in a `fori_loop` over its own output (no loop-invariant
 hoisting), best of 3. Stages fused inside `mjx.step` can cost less there than alone; the row
@@ -26,6 +30,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import mujoco
+import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint, forward, sensor, smooth, solver
 from physics_vs_go1 import NOISE_RAD, load_go1, run_meta
@@ -36,6 +41,7 @@ from quadson_mjx.tasks import FAST_PHYSICS
 
 # The training physics of every task (quadson_mjx.tasks.FAST_PHYSICS).
 TRAINING = FAST_PHYSICS
+FOOT_GEOM = "FL_foot_collision"  # Quadson's feet are spheres of one radius
 
 # name -> change of Quadson's training model (MjModel attribute path -> value)
 VARIANTS = {
@@ -125,6 +131,18 @@ def time_stage(fn, d, repeat: int) -> tuple[float, float]:
     return best / repeat, first
 
 
+def hfield_prisms_per_foot(m: mujoco.MjModel, foot_radius: float) -> int:
+    """The prisms MJX's height-field collider tests per foot sphere (2 per cell of its subgrid, as
+    mujoco.mjx's collision_driver sizes it: ceil(2 r / cell) + 1 cells a side); 0 without a field."""
+    if m.nhfield == 0:
+        return 0
+    nrow, ncol = int(m.hfield_nrow[0]), int(m.hfield_ncol[0])
+    xsize, ysize = m.hfield_size[0][:2]
+    x = min(int(np.ceil(2 * foot_radius / (2 * xsize / (ncol - 1)))) + 1, ncol)
+    y = min(int(np.ceil(2 * foot_radius / (2 * ysize / (nrow - 1)))) + 1, nrow)
+    return 2 * x * y
+
+
 def model_info(m: mujoco.MjModel, d: mjx.Data) -> dict:
     return {
         "nv": int(m.nv),
@@ -134,6 +152,7 @@ def model_info(m: mujoco.MjModel, d: mjx.Data) -> dict:
         "neq": int(m.neq),
         "nefc": int(d._impl.efc_J.shape[-2]),
         "ncon": int(d._impl.contact.dist.shape[-1]),
+        "hfield_cells": int(m.hfield_nrow[0] * m.hfield_ncol[0]) if m.nhfield else 0,
         "sensors": not bool(m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_SENSOR),
         "solver": int(m.opt.solver),
         "ls_iterations": int(m.opt.ls_iterations),
@@ -153,6 +172,13 @@ def main(argv=None):
     p.add_argument("--go1-scene", default=None, help="Playground's scene_mjx_feetonly_flat_terrain.xml")
     p.add_argument("--robots", nargs="+", default=["quadson", "caramel"])
     p.add_argument("--variants", nargs="*", default=[], choices=list(VARIANTS))
+    p.add_argument(
+        "--terrains",
+        nargs="*",
+        default=[],
+        choices=["rough", "tiles"],
+        help="also Quadson's training model on these grounds (height fields)",
+    )
     p.add_argument("--envs", type=int, default=32768)
     p.add_argument("--repeat", type=int, default=20, help="stage applications per timed call")
     p.add_argument(
@@ -181,11 +207,19 @@ def main(argv=None):
                 for path, value in VARIANTS[v].items():
                     set_attr(mv, path, value)
                 models.append((f"quadson_{v}", mv, m.key_qpos[key], m.key_ctrl[key], args.variant_stages))
+            for terrain in args.terrains:
+                env_t = LocomotionEnv(env_config(robot=robot, terrain=terrain, **TRAINING))
+                qpos0 = np.asarray(jax.jit(env_t.reset)(jax.random.PRNGKey(0)).pipeline_state.qpos)
+                models.append((f"quadson_{terrain}", env_t.mj_model, qpos0, m.key_ctrl[key], None))
     rows = []
     for name, m, qpos0, ctrl0, only in models:
         mx = mjx.put_model(m)
         d = settle(mx, qpos0, ctrl0, args.envs)
         row = {"model": name, **model_info(m, d), "envs": args.envs, "ns": {}, "compile_s": {}}
+        foot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, FOOT_GEOM) if name.startswith("quadson") else -1
+        row["hfield_prisms_per_foot"] = (
+            hfield_prisms_per_foot(m, float(m.geom_size[foot][0])) if foot >= 0 else 0
+        )
         for stage, fn in stages(mx):
             if only is not None and stage not in only:
                 continue
@@ -205,7 +239,7 @@ def main(argv=None):
             + " | ".join(f"{r['ns'][stage]:.2f}" if stage in r["ns"] else "" for r in rows)
             + " |"
         )
-    for key in ("nv", "nbody", "nefc", "ncon"):
+    for key in ("nv", "nbody", "nefc", "ncon", "hfield_prisms_per_foot"):
         print(f"| {key} | " + " | ".join(str(r[key]) for r in rows) + " |")
 
 
