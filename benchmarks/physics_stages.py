@@ -41,7 +41,6 @@ from quadson_mjx.tasks import FAST_PHYSICS
 
 # The training physics of every task (quadson_mjx.tasks.FAST_PHYSICS).
 TRAINING = FAST_PHYSICS
-FOOT_GEOM = "FL_foot_collision"  # Quadson's feet are spheres of one radius
 
 # name -> change of Quadson's training model (MjModel attribute path -> value)
 VARIANTS = {
@@ -131,16 +130,15 @@ def time_stage(fn, d, repeat: int) -> tuple[float, float]:
     return best / repeat, first
 
 
-def hfield_prisms_per_foot(m: mujoco.MjModel, foot_radius: float) -> int:
-    """The prisms MJX's height-field collider tests per foot sphere (2 per cell of its subgrid, as
-    mujoco.mjx's collision_driver sizes it: ceil(2 r / cell) + 1 cells a side); 0 without a field."""
-    if m.nhfield == 0:
-        return 0
-    nrow, ncol = int(m.hfield_nrow[0]), int(m.hfield_ncol[0])
-    xsize, ysize = m.hfield_size[0][:2]
-    x = min(int(np.ceil(2 * foot_radius / (2 * xsize / (ncol - 1)))) + 1, ncol)
-    y = min(int(np.ceil(2 * foot_radius / (2 * ysize / (nrow - 1)))) + 1, nrow)
-    return 2 * x * y
+def hfield_prisms_per_foot(m: mujoco.MjModel) -> int:
+    """The prisms MJX's height-field collider tests per geom it collides with the field: 2 per cell
+    of the subgrid MJX's collision driver sizes for the pair; 0 without a height-field pair."""
+    sizes = [
+        key.subgrid_size
+        for key in collision_driver._geom_groups(m)
+        if int(key.types[0]) == int(mujoco.mjtGeom.mjGEOM_HFIELD)
+    ]
+    return max((2 * x * y for x, y in sizes), default=0)
 
 
 def model_info(m: mujoco.MjModel, d: mjx.Data) -> dict:
@@ -216,10 +214,7 @@ def main(argv=None):
         mx = mjx.put_model(m)
         d = settle(mx, qpos0, ctrl0, args.envs)
         row = {"model": name, **model_info(m, d), "envs": args.envs, "ns": {}, "compile_s": {}}
-        foot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, FOOT_GEOM) if name.startswith("quadson") else -1
-        row["hfield_prisms_per_foot"] = (
-            hfield_prisms_per_foot(m, float(m.geom_size[foot][0])) if foot >= 0 else 0
-        )
+        row["hfield_prisms_per_foot"] = hfield_prisms_per_foot(m)
         for stage, fn in stages(mx):
             if only is not None and stage not in only:
                 continue

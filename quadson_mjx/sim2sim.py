@@ -93,6 +93,16 @@ def schedules(which: str, seconds: float) -> list[tuple[str, tuple | None, float
     return out
 
 
+def check_command_set(adapter, which: str, name: str) -> None:
+    """ValueError when the policy cannot run the command set `which`: one trained without commands
+    walks its gait at the gait's own speed only (the "gait" set)."""
+    if which != GAIT and not adapter.tracks_commands:
+        raise ValueError(
+            f"policy {name} was trained without commands (it walks its gait at the gait's own "
+            f"speed and observes no command): run it with --commands gait, not {which!r}"
+        )
+
+
 def clip_schedule(schedule, env_config: dict):
     """The schedule with each command clipped to the policy's trained command range (as the deploy
     loop clips what it observes): the reference the tracking errors are measured against."""
@@ -208,6 +218,12 @@ def run_episode(
     }
 
 
+def plant_seed_of(seed: int, schedule_index: int = 0, terrain: str = "flat") -> int:
+    """The plant's seed (model draw, sensor biases and noise, pushes) of a run: one stream per seed,
+    command schedule and terrain."""
+    return 1_000_003 * seed + 7919 * schedule_index + (17 if terrain == "stones" else 0)
+
+
 def run_one(job: dict) -> dict:
     """One job of run_suite (a plain dict, so that worker processes can take it) -> its row."""
     t0 = time.perf_counter()
@@ -216,7 +232,7 @@ def run_one(job: dict) -> dict:
     schedule = job["schedule"] or ((0.0, adapter.gait_command),)
     schedule = clip_schedule(schedule, adapter.env_config)
     seed = job["seed"]
-    plant_seed = 1_000_003 * seed + 7919 * job["schedule_index"] + (17 if job["terrain"] == "stones" else 0)
+    plant_seed = plant_seed_of(seed, job["schedule_index"], job["terrain"])
     plant = make_plant(
         robot,
         adapter.env_config,
@@ -271,11 +287,7 @@ def suite_jobs(
     for pol in policies:
         name, path = pol if isinstance(pol, tuple) else (Path(pol).stem, pol)
         adapter = LoopAdapter(path)
-        if which != GAIT and not adapter.tracks_commands:
-            raise ValueError(
-                f"policy {name} was trained without commands (it walks its gait at the gait's own "
-                f"speed and observes no command): run it with the gait command set, not {which!r}"
-            )
+        check_command_set(adapter, which, name)
         observes = adapter.observes_velocity
         for vs in velocity_sources if observes else ("true",):
             for terrain in terrains:

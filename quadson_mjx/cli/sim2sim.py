@@ -98,11 +98,10 @@ def parse(argv):
             adapter = S.LoopAdapter(path)
         except (ValueError, KeyError) as e:
             raise UsageError(f"policy {path}: the deploy loop refuses it: {e}") from e
-        if a.commands != S.GAIT and not adapter.tracks_commands:
-            raise UsageError(
-                f"policy {path} was trained without commands (it walks its gait at the gait's own speed "
-                f"and observes no command): run it with --commands gait, not --commands {a.commands}"
-            )
+        try:
+            S.check_command_set(adapter, a.commands, path)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
     return a
 
 

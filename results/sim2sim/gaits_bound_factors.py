@@ -39,7 +39,7 @@ def main():
                 P.plant_model(robot, "flat"),
                 P.ServoParams(latency_s=0.02),
                 P.SensorParams(),
-                1_000_003 * seed,
+                S.plant_seed_of(seed),
                 ranges,
                 None,
             )

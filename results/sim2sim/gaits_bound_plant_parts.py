@@ -57,7 +57,7 @@ def run(args) -> dict:
     if "no_deadband" in parts:
         servo = dataclasses.replace(servo, deadband_rad=0.0)
     ranges = {**S.DEFAULT_RANDOMIZATION, **adapter.env_config.get("randomization", {}), **(override or {})}
-    plant = P.Plant(robot, model, servo, P.SensorParams(), 1_000_003 * seed, ranges, None)
+    plant = P.Plant(robot, model, servo, P.SensorParams(), S.plant_seed_of(seed), ranges, None)
     if "no_speed_limit" in parts:
         plant.no_load_speed = None
     row = S.run_episode(adapter, plant, ((0.0, adapter.gait_command),), 20.0, seed)

@@ -11,7 +11,6 @@ foot, as a share of the steps. A run that falls counts up to its fall.
 """
 
 import argparse
-import math
 from pathlib import Path
 
 import numpy as np
@@ -23,27 +22,26 @@ from quadson_mjx.robots import get_robot
 GAITS = ("walk", "trot", "pace", "bound", "gallop")
 
 
+class _Footfalls:
+    """A run_episode recorder keeping each tracked step's feet down and the table's stance."""
+
+    def __init__(self, adapter):
+        self.adapter, self.contact, self.stance = adapter, [], []
+
+    def step(self, k, plant, readings, out, command, truth, ended):
+        if (k + 1) * self.adapter.ctrl_dt > S.WARMUP_S + 1e-9:
+            self.contact.append(plant.foot_forces() > gait_pattern.FORCE_THRESHOLD_N)
+            self.stance.append(self.adapter.scheduled_stance())
+
+
 def walk_once(policy: Path, seed: int):
-    """-> (contact (T, 4), stance (T, 4)) over the tracked steps of one run."""
+    """-> (contact (T, 4), stance (T, 4)) over the tracked steps of one run (sim2sim.run_one's)."""
     adapter = S.LoopAdapter(policy)
     robot = get_robot(adapter.env_config.get("robot", "quadson"))
-    plant = S.make_plant(robot, adapter.env_config, "flat", 0.02, 1_000_003 * seed, False, False)
-    rng = np.random.default_rng(seed)  # run_episode's heading draw
-    plant.reset((0.0, 0.0), float(rng.uniform(-math.pi, math.pi)))
-    adapter.reset(plant.read())
-    command, dt = np.asarray(adapter.gait_command), adapter.ctrl_dt
-    contact, stance = [], []
-    for k in range(int(round(20.0 / dt))):
-        out = adapter.step(plant.read(), command, None)
-        plant.send(out.motor_targets)
-        plant.advance(dt)
-        if (k + 1) * dt > S.WARMUP_S + 1e-9:
-            contact.append(plant.foot_forces() > gait_pattern.FORCE_THRESHOLD_N)
-            stance.append(adapter.scheduled_stance())
-        r, p, _ = plant.truth()["rpy"]
-        if abs(r) > math.pi / 4 or abs(p) > math.pi / 4:
-            break
-    return np.array(contact), np.array(stance)
+    plant = S.make_plant(robot, adapter.env_config, "flat", 0.02, S.plant_seed_of(seed), False, False)
+    feet = _Footfalls(adapter)
+    S.run_episode(adapter, plant, ((0.0, adapter.gait_command),), 20.0, seed, feet)
+    return np.array(feet.contact), np.array(feet.stance)
 
 
 def main():
