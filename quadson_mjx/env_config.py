@@ -48,6 +48,7 @@ ENV_KEYS_ADDED = {
     "cone": "pyramidal",
     "impl": "jax",
     "solver": "newton",
+    "solver_iterations": 1,
     "jacobian": "auto",
     "command_resample_s": (0.0, 0.0),
     "command_zero_prob": 0.0,
@@ -178,8 +179,12 @@ def env_config(
             "cone": "pyramidal",
             # Constraint solver: "newton" (MuJoCo's default: one Hessian Cholesky per iteration) or
             # "cg" (conjugate gradient preconditioned by the mass matrix, no Hessian), both with the
-            # model's iterations (1) and line-search iterations (5).
+            # model's line-search iterations (5).
             "solver": "newton",
+            # The solver's iterations per physics step: the model's 1 (the usual MJX training
+            # choice, each iteration a constraint solve) or more, for a contact and closed-chain
+            # solution nearer MuJoCo's converged one (the sim-to-sim plant runs 100).
+            "solver_iterations": 1,
             # Mass-matrix storage in MJX: "auto" (dense below 60 dofs on a GPU), "dense" or "sparse"
             # (factored level by level along the kinematic tree instead of by a batched Cholesky).
             "jacobian": "auto",
@@ -329,6 +334,7 @@ ENV_RULES: dict[str, Rule] = {
     "joint_limits": Rule("bool"),
     "cone": Rule("name"),
     "solver": Rule("name"),
+    "solver_iterations": Rule("int", 1, 100),
     "jacobian": Rule("name"),
     "impl": Rule("name"),
     "fivebar_model": Rule("name"),

@@ -53,6 +53,7 @@ def training_model(robot, cfg) -> mujoco.MjModel:
         legs_touch_ground(m, robot)
     m.opt.cone = CONES[cfg.cone]
     m.opt.solver = SOLVERS[cfg.solver]
+    m.opt.iterations = int(cfg.solver_iterations)
     m.opt.jacobian = JACOBIANS[cfg.jacobian]
     return m
 

@@ -68,7 +68,35 @@ DEFAULT_RANDOMIZATION = {
     "motor_strength": (0.8, 1.2),
     "base_com_shift_m": (-0.02, 0.02),
 }
+# the plant's randomized model: each a (low, high) range (quadson_mjx.sim2sim_plant.Plant) and the
+# widest this check lets through
+RANDOMIZED = {
+    "friction": (0.05, 3.0),
+    "mass_scale": (0.1, 3.0),
+    "motor_strength": (0.1, 3.0),
+    "base_com_shift_m": (-0.1, 0.1),
+}
 DEFAULT_PUSH = {"interval_s": (2.0, 4.0), "speed_mps": (0.1, 0.4)}
+
+
+def check_ranges(ranges: dict) -> dict:
+    """{key: (low, high)} of RANDOMIZED keys, finite, low <= high, inside the key's bounds, as
+    floats; ValueError naming the key otherwise."""
+    out = {}
+    for key, pair in ranges.items():
+        if key not in RANDOMIZED:
+            raise ValueError(f"randomization {key!r}: the plant randomizes {', '.join(RANDOMIZED)}")
+        lo_ok, hi_ok = RANDOMIZED[key]
+        try:
+            lo, hi = (float(v) for v in pair)
+        except (TypeError, ValueError):
+            raise ValueError(f"randomization {key}: a range is two numbers LOW,HIGH, got {pair!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo_ok <= lo <= hi <= hi_ok):
+            raise ValueError(
+                f"randomization {key}: {lo},{hi} is not a range LOW <= HIGH inside [{lo_ok}, {hi_ok}]"
+            )
+        out[key] = (lo, hi)
+    return out
 
 
 def step_schedule(segment_s: float = 5.0) -> tuple[str, tuple]:
@@ -135,10 +163,14 @@ def make_plant(
     pushes: bool,
     sensors: P.SensorParams | None = None,
     servo: P.ServoParams | None = None,
+    ranges: dict | None = None,
 ):
-    """A Plant for the policy's robot; randomization and push ranges from its env config."""
+    """A Plant for the policy's robot; randomization and push ranges from its env config, the
+    randomization's keys in `ranges` (RANDOMIZED: (low, high) each) replacing the config's."""
     servo = servo or P.ServoParams(latency_s=latency_s)
-    rand = {**DEFAULT_RANDOMIZATION, **env_config.get("randomization", {})} if randomize else None
+    rand = None
+    if randomize:
+        rand = {**DEFAULT_RANDOMIZATION, **env_config.get("randomization", {}), **(ranges or {})}
     push = {**DEFAULT_PUSH, **env_config.get("push", {})} if pushes else None
     model = P.plant_model(robot, terrain)
     return P.Plant(robot, model, servo, sensors or P.SensorParams(), seed, rand, push)
@@ -242,6 +274,7 @@ def run_one(job: dict) -> dict:
         job["randomize"],
         job["pushes"],
         sensors=job.get("sensors"),
+        ranges=job.get("ranges"),
     )
     recorder = None
     if job.get("mcap") or job.get("video"):
@@ -253,7 +286,7 @@ def run_one(job: dict) -> dict:
     finally:
         if recorder is not None:
             recorder.close()
-    keys = ("policy_name", "terrain", "label", "seed", "latency_s", "randomize", "pushes")
+    keys = ("policy_name", "terrain", "label", "seed", "latency_s", "randomize", "pushes", "ranges")
     return {
         **{k: job[k] for k in keys},
         "velocity_source": adapter.velocity_source,
@@ -279,10 +312,13 @@ def suite_jobs(
     mcap="first",
     video=False,
     sensors: P.SensorParams | None = None,
+    ranges: dict | None = None,
 ) -> list[dict]:
     """Every (policy, velocity source, terrain, schedule, seed) as a job for run_one. policies:
     paths, or (name, path) pairs. A sensor-only policy runs once, whatever velocity_sources says.
-    mcap: "none" | "first" (the first seed's runs) | "all", written under out_dir/mcap/."""
+    mcap: "none" | "first" (the first seed's runs) | "all", written under out_dir/mcap/. ranges:
+    randomization ranges replacing each policy's trained ones (check_ranges), for every policy."""
+    ranges = check_ranges(ranges or {})
     jobs = []
     for pol in policies:
         name, path = pol if isinstance(pol, tuple) else (Path(pol).stem, pol)
@@ -314,6 +350,7 @@ def suite_jobs(
                                 if want and video
                                 else None,
                                 "sensors": sensors,
+                                "ranges": ranges,
                             }
                         )
     return jobs

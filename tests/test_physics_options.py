@@ -1,5 +1,5 @@
 """The environment's physics options (env_config keys base_terrain_contact, joint_limits, cone, solver,
-jacobian, impl): the constraint rows MJX allocates, counted by hand, the solver and mass-matrix
+solver_iterations, jacobian, impl): the constraint rows MJX allocates, counted by hand, the solver and mass-matrix
 storage the model gets, and errors that name a bad value."""
 
 import mujoco
@@ -60,3 +60,19 @@ def test_bad_physics_option_names_the_key(key, value):
     cfg = apply_overrides(env_config(), [f"{key}={value}"])
     with pytest.raises(ValueError, match=f"env.{key}"):
         LocomotionEnv(cfg)
+
+
+def test_solver_iterations_reach_the_mjx_model_and_old_runs_keep_one():
+    from quadson_mjx.env_config import with_added_keys
+
+    _, env = _rows(solver_iterations=4)
+    assert env.mj_model.opt.iterations == 4 and env.sys.opt.iterations == 4
+    assert env.mj_model.opt.ls_iterations == 5  # the model's line search, whatever the iterations
+    old = env_config().to_dict()
+    del old["solver_iterations"]  # a run saved before the key: the model's one iteration
+    assert with_added_keys(old).solver_iterations == 1
+    for bad in (0, 101):
+        with pytest.raises(ValueError, match="env.solver_iterations"):
+            LocomotionEnv(apply_overrides(env_config(), [f"solver_iterations={bad}"]))
+    with pytest.raises(ValueError, match="solver_iterations"):
+        apply_overrides(env_config(), ["solver_iterations=2.5"])

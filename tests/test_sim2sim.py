@@ -205,6 +205,34 @@ def test_sensor_only_policy_closed_loop_takes_no_velocity(robot):
     assert all(math.isfinite(row[k]) for k in ("vx_rms", "vy_rms", "yaw_rate_rms"))
 
 
+def test_randomization_ranges_replace_the_trained_ones(robot, gait_policies):
+    # each range pinned to one value: the plant's model is the nominal one scaled by exactly it
+    env_cfg = {"randomization": {"mass_scale": (0.85, 1.25), "friction": (0.5, 1.2)}}
+    ranges = {"mass_scale": (1.1, 1.1), "friction": (0.7, 0.7), "motor_strength": (0.9, 0.9), "base_com_shift_m": (0.01, 0.01)}  # fmt: skip
+    nominal = S.make_plant(robot, env_cfg, "flat", 0.02, seed=3, randomize=False, pushes=False)
+    plant = S.make_plant(robot, env_cfg, "flat", 0.02, seed=3, randomize=True, pushes=False, ranges=ranges)
+    nominal.reset()
+    plant.reset()  # draws the episode's model
+    np.testing.assert_allclose(plant.m.body_mass, 1.1 * nominal.m.body_mass, rtol=1e-12)
+    np.testing.assert_allclose(plant.m.geom_friction[:, 0], 0.7)
+    np.testing.assert_allclose(plant.kp, 0.9 * nominal.kp, rtol=1e-12)
+    shift = plant.m.body_ipos[plant.root, 0] - nominal.m.body_ipos[nominal.root, 0]
+    assert shift == pytest.approx(0.01, abs=1e-12)
+    # through a suite: every job carries them to run_one's plant (and its row)
+    (job,) = S.suite_jobs(
+        [("trot", gait_policies["trot"])], ("flat",), "gait", 1.0, randomize=True, ranges=ranges
+    )
+    assert job["ranges"] == ranges and S.run_one(job)["ranges"] == ranges
+    for bad, match in (
+        ({"mass": (0.9, 1.1)}, "mass"),
+        ({"friction": (1.2, 0.5)}, "friction"),
+        ({"motor_strength": (0.9, float("nan"))}, "motor_strength"),
+        ({"base_com_shift_m": (0.0,)}, "two numbers"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            S.check_ranges(bad)
+
+
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
     from quadson_mjx import export
@@ -251,6 +279,10 @@ def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, gait_policies, 
         [str(path), "--out", "/proc/version/x"],  # below a regular file: not creatable, even as root
         [str(path), "--commands", "trot"],
         [str(gait_policies["trot"])],  # trained without commands: the sweep is not its to run
+        [str(path), "--randomization", "mass_scale=0.9,1.1"],  # a range without --randomize
+        [str(path), "--randomize", "--randomization", "mass=0.9,1.1"],
+        [str(path), "--randomize", "--randomization", "mass_scale=1.1,0.9"],
+        [str(path), "--randomize", "--randomization", "friction=0.5"],
     ]
     for argv in cases:
         assert main(argv) == 2, argv

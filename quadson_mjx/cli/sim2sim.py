@@ -13,7 +13,9 @@ schedule vx 0 -> 0.4 -> 0 -> -0.2 m/s in four segments of --seconds / 4; "gait":
 policy's gait speed for --seconds, the only set of a policy trained without commands) on each
 terrain, with --seeds seeds (heading, sensor biases and noise, randomized model, pushes). Every run
 reports falls, tracking RMS and the feet's contact pattern against the gait's phase table. A policy
-that observes the base velocity gets it from each --velocity-source; a sensor-only policy runs once. Writes
+that observes the base velocity gets it from each --velocity-source; a sensor-only policy runs once.
+--randomize draws each run's model from the policy's trained ranges; --randomization KEY=LOW,HIGH
+replaces one of them for every policy (to compare policies trained on different ranges). Writes
 OUT/summary.json (the command line, the plant's settings, one row per condition, one per run),
 OUT/mcap/*.mcap (the first seed's runs; --mcap all|none), OUT/video/*.mp4 with --video.
 Check a file: python -m quadson_mjx.mcap_check FILE --rollout. Bad input: one line, exit status 2.
@@ -61,6 +63,14 @@ def parse(argv):
     p.add_argument(
         "--randomize", action="store_true", help="randomized model (friction, masses, motors, CoM)"
     )
+    p.add_argument(
+        "--randomization",
+        action="append",
+        default=[],
+        metavar="KEY=LOW,HIGH",
+        help="with --randomize: a range replacing the policy's trained one, repeatable "
+        f"({', '.join(S.RANDOMIZED)})",
+    )
     p.add_argument("--pushes", action="store_true", help="horizontal velocity kicks at random intervals")
     p.add_argument("--seeds", type=int, default=3, help="seeds 0 .. N-1 per command")
     p.add_argument(
@@ -88,6 +98,9 @@ def parse(argv):
             f"--velocity-source {a.velocity_source}: choose from {', '.join(S.VELOCITY_SOURCES)} or all"
         )
     a.velocity_sources = sources
+    a.ranges = parse_ranges(a.randomization)
+    if a.ranges and not a.randomize:
+        raise UsageError("--randomization sets ranges of the randomized model: add --randomize")
     for path in a.policy:
         check_readable(path, "policy")
         if Path(path).suffix.lower() not in (".onnx", ".npz"):
@@ -133,6 +146,7 @@ def main(argv=None) -> int:
         mcap=a.mcap,
         video=a.video,
         sensors=sensors,
+        ranges=a.ranges,
     )
     t0 = time.perf_counter()
 
@@ -167,6 +181,22 @@ def main(argv=None) -> int:
     write_text_atomic(out / "summary.json", json.dumps(result, indent=1, default=_jsonable) + "\n")
     print(f"wrote {out / 'summary.json'}")
     return 0
+
+
+def parse_ranges(items: list[str]) -> dict:
+    """["KEY=LOW,HIGH", ...] -> {KEY: (LOW, HIGH)} (sim2sim.check_ranges); UsageError otherwise."""
+    ranges = {}
+    for item in items:
+        key, eq, pair = item.partition("=")
+        if not eq or key in ranges:
+            what = "is given twice" if eq else "is not KEY=LOW,HIGH"
+            raise UsageError(f"--randomization {item}: {what}")
+        ranges[key] = tuple(pair.split(","))
+        try:
+            S.check_ranges({key: ranges[key]})
+        except ValueError as e:
+            raise UsageError(f"--randomization {item}: {e}") from None
+    return S.check_ranges(ranges)
 
 
 def run_line(row: dict) -> str:
