@@ -54,6 +54,8 @@ def training_model(robot, cfg) -> mujoco.MjModel:
     m.opt.cone = CONES[cfg.cone]
     m.opt.solver = SOLVERS[cfg.solver]
     m.opt.iterations = int(cfg.solver_iterations)
+    if cfg.get("sim_dt", 0.0) > 0.0:
+        m.opt.timestep = float(cfg.sim_dt)
     m.opt.jacobian = JACOBIANS[cfg.jacobian]
     return m
 

@@ -40,6 +40,9 @@ def reward_config(height_target: float, command_tracking: bool = False) -> ml_co
         # feet on the ground where the phase table has them in swing (within one control step),
         # counted per foot; off in every recipe, a fine-tuning option for the gait policies
         "swing_touch": 0.0,
+        # feet off the ground where the phase table has them in stance (within one control step),
+        # counted per foot; off in every recipe, a fine-tuning option for the gait policies
+        "stance_lift": 0.0,
         # paid once, on the step an episode ends by a fall (tilt, height, the base in the ground);
         # a truncation (time, the field's edge) is not a fall. Off unless a recipe sets it.
         "termination": 0.0,

@@ -112,6 +112,15 @@ def swing_touch(contact, stance_near):
     return jnp.sum((contact & swing).astype(jnp.float32), axis=-1)
 
 
+def stance_lift(contact, stance_near):
+    """Number of feet off the ground (contact (..., 4) bool) that the phase table has in stance at
+    the control step before, at and after this one (stance_near (..., 3, 4) bool), in [0, 4]: the
+    other misses of the pattern match within one step, swing_touch's mirror. It charges a foot that
+    leaves the ground in the middle of its stance (a bounce, a flicker of contact)."""
+    stance = jnp.all(stance_near, axis=-2)
+    return jnp.sum((~contact & stance).astype(jnp.float32), axis=-1)
+
+
 def locomotion_terms(
     r,
     forward_target,
@@ -151,6 +160,7 @@ def locomotion_terms(
         "contact_phase": contact_phase(contact, stance),
         "contact_pattern": contact_pattern(contact, stance_near),
         "swing_touch": swing_touch(contact, stance_near),
+        "stance_lift": stance_lift(contact, stance_near),
         "termination": jnp.asarray(fallen, jnp.float32),
     }
 

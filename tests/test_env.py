@@ -118,6 +118,7 @@ def test_reward_terms_by_hand(env, fns):
     # FR is down one step after the table lifted it: inside the one-step tolerance, so all four agree
     assert float(terms["contact_pattern"]) == 1.0
     assert float(terms["swing_touch"]) == 0.0  # FR's touch is inside the tolerance too
+    assert float(terms["stance_lift"]) == 0.0  # no foot is up where the table says stance
     assert float(terms["termination"]) == 1.0  # the step's fall flag, as given
     # yaw-rate error squared: (1.0 - the command's yaw rate)^2
     wz_cmd = float(info["command"][2])
@@ -126,7 +127,7 @@ def test_reward_terms_by_hand(env, fns):
     w = env.config.reward.weights
     assert (w.forward_velocity_exp, w.lateral_l2, w.vertical_l2, w.orientation_l2) == (1.0, -0.8, -0.8, -1.0)
     assert w.lin_vel_tracking_exp == 0.0 and w.ang_vel_tracking_exp == 0.0 and w.yaw_rate_error_l2 == 0.0
-    assert w.swing_touch == 0.0
+    assert w.swing_touch == 0.0 and w.stance_lift == 0.0
 
 
 def test_step_reward_is_the_weighted_sum_of_logged_terms(fns):

@@ -434,6 +434,9 @@ def gaits_cli():
         (["--randomization", "mass_scale=1.2"], ["--randomization", "takes 2 values"]),
         (["--randomization", "friction=1.2,0.5"], ["--randomization", "env.randomization.friction"]),
         (["--randomization", "mass_scale"], ["--randomization"]),
+        (["--physics", "timestep=0.002"], ["--physics timestep=0.002", "sim_dt, solver_iterations"]),
+        (["--physics", "sim_dt=0.003"], ["--physics", "whole multiple", "0.003 s (env.sim_dt)"]),
+        (["--physics", "solver_iterations=0"], ["--physics", "env.solver_iterations"]),
     ],
 )
 def test_gaits_cli_usage_errors_exit_2(gaits_cli, capsys, tmp_path, args, words):
@@ -574,6 +577,27 @@ def test_swing_touch_counts_the_feet_that_miss_the_pattern_by_touching():
     feet = jnp.array([True, False, False, True])
     assert float(rewards.swing_touch(feet, jnp.zeros((3, 4), bool))) == 2.0
     assert float(rewards.swing_touch(feet, jnp.zeros((3, 4), bool).at[2, 0].set(True))) == 1.0
+
+
+def test_stance_lift_counts_the_feet_that_miss_the_pattern_by_lifting():
+    # the mirror of swing_touch against the evaluation's per-foot match: a lifted foot that misses
+    # the table within one step is a lift in stance; together the two terms count every miss
+    rng = np.random.default_rng(5)
+    contact = rng.random((300, 4)) < 0.5
+    stance = rng.random((300, 4)) < 0.6
+    agree = gait_eval.tolerant_agreement(contact, stance, 1)[1:-1]
+    want = (~contact[1:-1] & ~agree).sum(axis=-1).astype(np.float32)
+    near = np.stack([stance[:-2], stance[1:-1], stance[2:]], axis=1)
+    c, n = jnp.asarray(contact[1:-1]), jnp.asarray(near)
+    got = jax.jit(jax.vmap(rewards.stance_lift))(c, n)
+    np.testing.assert_array_equal(np.asarray(got), want)
+    assert set(np.unique(want)) >= {0.0, 1.0, 2.0}
+    both = np.asarray(got) + np.asarray(jax.vmap(rewards.swing_touch)(c, n))
+    np.testing.assert_array_equal(both, (~agree).sum(axis=-1))
+    # by hand: the table in stance all around, FL and RR up -> 2; FL's swing one step before -> 1
+    feet = jnp.array([False, True, True, False])
+    assert float(rewards.stance_lift(feet, jnp.ones((3, 4), bool))) == 2.0
+    assert float(rewards.stance_lift(feet, jnp.ones((3, 4), bool).at[0, 0].set(False))) == 1.0
 
 
 def _weighted_reward(cfg, rpy):

@@ -76,3 +76,21 @@ def test_solver_iterations_reach_the_mjx_model_and_old_runs_keep_one():
             LocomotionEnv(apply_overrides(env_config(), [f"solver_iterations={bad}"]))
     with pytest.raises(ValueError, match="solver_iterations"):
         apply_overrides(env_config(), ["solver_iterations=2.5"])
+
+
+def test_sim_dt_reaches_the_mjx_model_and_a_control_step_stays_ctrl_dt():
+    import jax
+    import jax.numpy as jnp
+
+    from quadson_mjx.env_config import with_added_keys
+
+    _, env = _rows(sim_dt=0.002)
+    assert env.mj_model.opt.timestep == 0.002 and float(env.sys.opt.timestep) == pytest.approx(0.002)
+    assert env._n_substeps == 10  # 20 ms control step / 2 ms
+    s = env.step(env.reset(jax.random.PRNGKey(0)), jnp.zeros(env.action_size))
+    assert float(s.pipeline_state.time) == pytest.approx(0.02, abs=1e-6)
+    _, default = _rows()
+    assert default.mj_model.opt.timestep == 0.004 and default._n_substeps == 5  # 0: the model's
+    old = env_config().to_dict()
+    del old["sim_dt"]
+    assert with_added_keys(old).sim_dt == 0.0

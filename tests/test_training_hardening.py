@@ -106,7 +106,15 @@ def _get(cfg, dotted):
         ("episode_length_s=1e12", r"env\.episode_length_s must be a number in \(0, 3600\] s"),
         ("reward.weights.torque_l2=1e300", r"env\.reward\.weights\.torque_l2 must be finite in float32"),
         ("reward.weights.torque_l2=-2e4", r"env\.reward\.weights\.torque_l2 must be a number in \[-10000"),
-        ("ctrl_dt=0.021", r"env\.ctrl_dt must be a whole multiple of quadson's physics timestep 0.004 s"),
+        (
+            "ctrl_dt=0.021",
+            r"env\.ctrl_dt must be a whole multiple of the physics timestep 0.004 s \(quadson's model\)",
+        ),
+        (
+            "sim_dt=0.003",
+            r"env\.ctrl_dt must be a whole multiple of the physics timestep 0.003 s \(env\.sim_dt\)",
+        ),
+        ("sim_dt=0.5", r"env\.sim_dt"),
         ("randomization.latency_s=(0.2, 0.1)", r"env\.randomization\.latency_s must be a \(low, high\)"),
         ("sensor.gyro_noise_rps=-1", r"env\.sensor\.gyro_noise_rps"),
         ("obs_history=17", r"env\.obs_history must be an integer in \[1, 16\]"),

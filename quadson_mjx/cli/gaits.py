@@ -14,6 +14,8 @@ roll/pitch std, and how often the feet's contact (from contact forces) matches t
 --randomization KEY=VALUE (repeatable) sets one range of the randomized model for every row
 (`randomization.KEY`: friction, mass_scale, motor_strength, base_com_shift_m, latency_s; a range
 LOW,HIGH, or one corner as VALUE,VALUE), to evaluate a policy on part of its training range.
+--physics KEY=VALUE (repeatable; sim_dt, solver_iterations) integrates every row otherwise than
+trained: a finer timestep or more solver iterations, nearer MuJoCo's converged physics.
 Prints a markdown table; --json writes every number (whole or not at all).
 A bad input (an unknown gait or controller, an unknown or out-of-range --randomization, a non-finite or impossible time, an episode longer than
 MAX_SECONDS, a --json path that exists or lies in a missing or read-only folder, a run in RUNS/<gait>
@@ -63,6 +65,13 @@ def parse(argv):
         help="a range of the randomized model for every row (randomization.KEY), repeatable",
     )
     p.add_argument(
+        "--physics",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help=f"integrate every row otherwise than trained, repeatable ({', '.join(PHYSICS_KEYS)})",
+    )
+    p.add_argument(
         "--footfalls",
         type=float,
         nargs=2,
@@ -92,15 +101,23 @@ def parse(argv):
     if args.json:
         errors.check_writable(args.json, "--json")
     args.randomization = [f"randomization.{r}" for r in args.randomization]
-    try:  # every override checked on the recipe's config before any run loads
-        check_env_config(
-            apply_overrides(env_config(gait=gaits[0], gait_recipe=True), args.randomization, prefix="env.")
-        )
-    except ValueError as e:
-        raise UsageError(f"--randomization: {errors.one_line(e)}") from None
+    bad = [f for f in args.physics if f.partition("=")[0] not in PHYSICS_KEYS]
+    if bad:
+        raise UsageError(f"--physics {bad[0]}: the physics keys are {', '.join(PHYSICS_KEYS)}")
+    for flag, overrides in (("--randomization", args.randomization), ("--physics", args.physics)):
+        try:  # every override checked on the recipe's config before any run loads
+            check_env_config(
+                apply_overrides(env_config(gait=gaits[0], gait_recipe=True), overrides, prefix="env.")
+            )
+        except ValueError as e:
+            raise UsageError(f"{flag}: {errors.one_line(e)}") from None
     for g in gaits:
         check_run(run_of(args, g), g)
     return args, gaits
+
+
+# env keys that --physics may set: how the rows are integrated, not what the robot or the task is
+PHYSICS_KEYS = ("sim_dt", "solver_iterations")
 
 
 def run_of(args, gait: str) -> Path | None:
@@ -142,8 +159,8 @@ def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
             env_cfg = apply_overrides(env_cfg, ["command_tracking=false", "randomize=true"])
     else:
         env_cfg = env_config(gait=gait, gait_recipe=True, **TRAINING_PHYSICS)
-    if args.randomization:
-        env_cfg = apply_overrides(env_cfg, args.randomization, prefix="env.")
+    if args.randomization or args.physics:
+        env_cfg = apply_overrides(env_cfg, args.randomization + args.physics, prefix="env.")
     env = LocomotionEnv(env_cfg)
     controllers = [c for c in (R.gait_only(env), R.pid_stabilizer(env)) if c.name in args.controllers]
     if policy is not None and "policy" in args.controllers:
@@ -200,6 +217,7 @@ def main(argv=None) -> int:
     if args.json:
         meta = {"envs": args.envs, "seconds": args.seconds, "settle_s": args.settle_s, "seed": args.seed}
         meta["randomization"] = [r[len("randomization.") :] for r in args.randomization]
+        meta["physics"] = list(args.physics)
         errors.write_text_atomic(args.json, json.dumps({"settings": meta, "rows": rows}, indent=2))
     return 0
 
