@@ -7,12 +7,18 @@ the pyramidal cone (the plant: 100, 50, elliptic) the plant diverges within 0.1 
 training's Euler integrator or the plant's implicit-fast. Last, the plant as in sim2sim under the ranges of the committed MJX
 evaluation (its `--randomization` flags: masses 0.85-1.15, CoM +-2 cm, motors 0.8-1.2, friction
 the config's 0.5-1.2), narrower than the bound's training ranges (masses to 1.25, CoM to +3 cm).
-The bound under its trained randomization ranges, 20 s at its gait's
+With --solver-iterations N (a policy trained with env.solver_iterations N), two more conditions:
+the plant integrated as MJX trains, at 4 ms with the Euler integrator, N Newton iterations, 5
+line-search iterations and the pyramidal cone ("MJX integration"), alone and with the four
+parts. The bound under its trained randomization ranges, 20 s at its gait's
 command on flat ground, 20 ms latency, sensor noise on, the plant seeds of
 `eval/sim2sim.py --commands gait --randomize` (seed k: the suite's seed k).
 
     python -m quadson_mjx.export results/gaits/bound /tmp/gaits/bound.onnx
     python results/sim2sim/gaits_bound_plant_parts.py /tmp/gaits/bound.onnx --seeds 30 > results/sim2sim/gaits_bound_plant_parts.log
+    python -m quadson_mjx.export results/gaits/transfer/bound /tmp/transfer/bound.onnx
+    python results/sim2sim/gaits_bound_plant_parts.py /tmp/transfer/bound.onnx --seeds 30 --solver-iterations 4 \
+        > results/gaits/transfer/plant_parts.log
 """
 
 import argparse
@@ -43,10 +49,15 @@ CONDITIONS = (
 
 
 def run(args) -> dict:
-    policy, parts, override, seed = args
+    policy, parts, override, seed, iterations = args
     robot = get_robot("quadson")
     adapter = S.LoopAdapter(policy)
     model = M.plant_model(robot, "flat", timestep_s=0.004 if "timestep_4ms" in parts else M.TIMESTEP_S)
+    if "training_integration" in parts:
+        model.opt.timestep = 0.004
+        model.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
+        model.opt.iterations, model.opt.ls_iterations = iterations, 5
+        model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
     if "feet_only" in parts:
         feet = set(robot.foot_geoms())
         for g in range(model.ngeom):
@@ -69,10 +80,18 @@ def main():
     p.add_argument("policy")
     p.add_argument("--seeds", type=int, default=30)
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--solver-iterations", type=int, default=None)
     a = p.parse_args()
+    conditions = CONDITIONS
+    if a.solver_iterations:
+        conditions += (
+            ("+ MJX integration", ("training_integration",), None),
+            ("+ all four + MJX int.", (*PARTS, "training_integration"), None),
+        )
     with cf.ProcessPoolExecutor(a.workers, mp_context=mp.get_context("spawn")) as ex:
-        for name, parts, override in CONDITIONS:
-            rows = list(ex.map(run, [(a.policy, parts, override, s) for s in range(a.seeds)]))
+        for name, parts, override in conditions:
+            jobs = [(a.policy, parts, override, s, a.solver_iterations) for s in range(a.seeds)]
+            rows = list(ex.map(run, jobs))
             fell = [r["seed"] for r in rows if r["fell"]]
             print(
                 f"{name:22s} falls {len(fell):2d}/{a.seeds} (seeds {fell}), "
