@@ -59,6 +59,22 @@ BOUND_WIDE = ["randomization.mass_scale=0.85,1.25", "randomization.base_com_shif
 BOUND_WEIGHTS = ["reward.weights.contact_pattern=8.0", "reward.weights.forward_velocity_exp=2.0"]
 BOUND_SWING = [*BOUND_WIDE, "reward.weights.contact_pattern=8.0", "reward.weights.forward_velocity_exp=3.0",
                "reward.weights.swing_touch=-2.0"]  # fmt: skip
+
+
+def _replacing(base: list[str], *extra: str) -> list[str]:
+    """base's overrides with those of `extra`'s keys replaced by extra."""
+    keys = {e.partition("=")[0] for e in extra}
+    return [o for o in base if o.partition("=")[0] not in keys] + list(extra)
+
+
+BOUND_PUSH = _replacing(BOUND_SWING, "pushes=true", "randomization.base_com_shift_m=-0.02,0.04")
+BOUND_IT4 = _replacing(
+    BOUND_PUSH,
+    "solver_iterations=4",
+    "randomization.motor_strength=0.7,1.3",
+    "randomization.mass_scale=0.8,1.3",
+    "randomization.latency_s=0.0,0.03",
+)
 COMMITTED_RUNS = {
     # trained before the robust recipe observed the robot's sensors: its true_state twin
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
@@ -94,6 +110,16 @@ COMMITTED_RUNS = {
     "results/gaits/finetune/bound_wide_more": ("QuadsonGaitBound", BOUND_WIDE),
     "results/gaits/before_finetune/bound": ("QuadsonGaitBound", []),
     "results/gaits/gallop": ("QuadsonGaitGallop", []),
+    # fine-tuned from results/gaits/bound for MuJoCo C (results/gaits/transfer/README.md): pushes,
+    # a CoM range to +4 cm, the solver's iterations; then from it4_push_wide_com4 (more, bound)
+    "results/gaits/transfer/push_com4": ("QuadsonGaitBound", BOUND_PUSH),
+    "results/gaits/transfer/it2_push_com4": ("QuadsonGaitBound", [*BOUND_PUSH, "solver_iterations=2"]),
+    "results/gaits/transfer/it4_push_wide_com4": ("QuadsonGaitBound", BOUND_IT4),
+    "results/gaits/transfer/more": ("QuadsonGaitBound", BOUND_IT4),
+    "results/gaits/transfer/bound": (
+        "QuadsonGaitBound",
+        _replacing(BOUND_IT4, "reward.weights.forward_velocity_exp=4.0"),
+    ),
     # trials of a fall penalty (not kept as the gaits' policies)
     "results/gaits/trials_termination/t_pace": ("QuadsonGaitPace", ["reward.weights.termination=-100"]),
     "results/gaits/trials_termination/ts_bound": (
