@@ -434,6 +434,10 @@ def gaits_cli():
         (["--randomization", "mass_scale=1.2"], ["--randomization", "takes 2 values"]),
         (["--randomization", "friction=1.2,0.5"], ["--randomization", "env.randomization.friction"]),
         (["--randomization", "mass_scale"], ["--randomization"]),
+        (["--run", "hop={tmp}"], ["--run hop=", "GAIT=DIR"]),
+        (["--run", "bound"], ["--run bound", "GAIT=DIR"]),
+        (["--run", "bound={tmp}/missing"], ["--run bound=", "missing is not a directory"]),
+        (["--run", "bound={tmp}", "--run", "bound={tmp}"], ["--run", "once per gait"]),
         (["--physics", "timestep=0.002"], ["--physics timestep=0.002", "sim_dt, solver_iterations"]),
         (["--physics", "sim_dt=0.003"], ["--physics", "whole multiple", "0.003 s (env.sim_dt)"]),
         (["--physics", "solver_iterations=0"], ["--physics", "env.solver_iterations"]),
@@ -474,6 +478,11 @@ def test_regression_gaits_cli_run_of_another_gait_is_refused_before_running(gait
         assert gaits_cli.main(["--gaits", "bound", "--runs", str(tmp_path)]) == 2
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and words in err, err
+    # --run names the bound's run directly, in place of RUNS/bound (here the trot's config)
+    other = tmp_path / "elsewhere"
+    shutil.copytree(run, other)
+    assert gaits_cli.main(["--gaits", "bound", "--runs", "results/gaits", "--run", f"bound={other}"]) == 2
+    assert "--run: " in (err := capsys.readouterr().err) and "elsewhere trained the gait 'trot'" in err
 
 
 @pytest.fixture(scope="module")

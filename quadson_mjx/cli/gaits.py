@@ -5,7 +5,7 @@
 (`python eval/gaits.py ...` runs the same command.)
 
 For each gait, the controllers `gait` (open loop), `pid` (gait + seed 003's roll/pitch stabilizer)
-and, where RUNS/<gait> holds a trained run, `policy` each walk --envs episodes of --seconds (seed
+and, where RUNS/<gait> (or --run GAIT=DIR) holds a trained run, `policy` each walk --envs episodes of --seconds (seed
 000's 18.75 s by default) at the gait's own forward speed, on flat ground, one randomized model per
 episode (friction, masses, servo strength, latency, centre of mass), in the gait recipe's env config
 (env_config(gait=G, gait_recipe=True) with the training's feet-only contact; a run's own config for
@@ -51,6 +51,13 @@ def parse(argv):
     p = errors.ArgumentParser(prog="quadson-gaits", description=__doc__.split("\n\n")[0])
     p.add_argument("--gaits", default=",".join(FIVE), help="comma-separated (default: all five)")
     p.add_argument("--runs", default=None, help="directory with one trained run per gait: RUNS/<gait>")
+    p.add_argument(
+        "--run",
+        action="append",
+        default=[],
+        metavar="GAIT=DIR",
+        help="one gait's run, instead of RUNS/<gait>; repeatable",
+    )
     p.add_argument("--envs", type=int, default=100, help="episodes per row")
     p.add_argument("--seconds", type=float, default=SEED_EPISODE_S, help="episode length [s]")
     p.add_argument("--settle-s", type=float, default=1.0, help="start of the measured window [s]")
@@ -90,6 +97,14 @@ def parse(argv):
         p.error("need --envs >= 1 and --seconds > --settle-s >= 0")
     if args.runs and not Path(args.runs).is_dir():
         p.error(f"--runs {args.runs} is not a directory")
+    args.run_dirs = {}
+    for item in args.run:
+        gait, eq, run = item.partition("=")
+        if not eq or gait not in GAIT_RECIPES or gait in args.run_dirs:
+            p.error(f"--run {item}: GAIT=DIR, once per gait, GAIT one of {sorted(GAIT_RECIPES)}")
+        if not Path(run).is_dir():
+            p.error(f"--run {item}: {run} is not a directory")
+        args.run_dirs[gait] = Path(run)
     controllers = [c for c in args.controllers.split(",") if c]
     if not controllers or any(c not in ("gait", "pid", "policy") for c in controllers):
         p.error(f"--controllers takes gait, pid, policy; got {args.controllers!r}")
@@ -112,7 +127,7 @@ def parse(argv):
         except ValueError as e:
             raise UsageError(f"{flag}: {errors.one_line(e)}") from None
     for g in gaits:
-        check_run(run_of(args, g), g)
+        check_run(run_of(args, g), g, "--run" if g in args.run_dirs else "--runs")
     return args, gaits
 
 
@@ -121,25 +136,28 @@ PHYSICS_KEYS = ("sim_dt", "solver_iterations")
 
 
 def run_of(args, gait: str) -> Path | None:
-    """RUNS/<gait> if it is a directory, else None (the gait has no trained run)."""
+    """The gait's --run, else RUNS/<gait> if it is a directory, else None (no trained run)."""
+    if gait in getattr(args, "run_dirs", {}):
+        return args.run_dirs[gait]
     run = Path(args.runs) / gait if args.runs else None
     return run if run is not None and run.is_dir() else None
 
 
-def check_run(run_dir: Path | None, gait: str) -> None:
-    """UsageError unless run_dir (if any) is a training run of `gait` whose config loads."""
+def check_run(run_dir: Path | None, gait: str, flag: str = "--runs") -> None:
+    """UsageError (naming `flag`) unless run_dir (if any) is a training run of `gait` whose config
+    loads."""
     if run_dir is None:
         return
     from quadson_mjx import training
 
     if not (run_dir / "config.json").is_file():
-        raise UsageError(f"--runs: {run_dir} is not a training run directory (no config.json in it)")
+        raise UsageError(f"{flag}: {run_dir} is not a training run directory (no config.json in it)")
     try:
         cfg = with_added_keys(training.load_run_config(run_dir)[0])
     except ValueError as e:
-        raise UsageError(f"--runs: {run_dir}: {errors.one_line(e)}") from None
+        raise UsageError(f"{flag}: {run_dir}: {errors.one_line(e)}") from None
     if cfg.gait != gait:
-        raise UsageError(f"--runs: {run_dir} trained the gait {cfg.gait!r}, not {gait!r}")
+        raise UsageError(f"{flag}: {run_dir} trained the gait {cfg.gait!r}, not {gait!r}")
 
 
 def rows_for_gait(gait: str, run_dir: Path | None, args) -> list[dict]:
