@@ -111,11 +111,20 @@ COMMITTED_RUNS = {
     "results/gaits/before_finetune/bound": ("QuadsonGaitBound", []),
     "results/gaits/gallop": ("QuadsonGaitGallop", []),
     # fine-tuned from results/gaits/bound for MuJoCo C (results/gaits/transfer/README.md): pushes,
-    # a CoM range to +4 cm, the solver's iterations; then from it4_push_wide_com4 (more, bound)
+    # a CoM range to +4 cm, the solver's iterations; then from it4_push_wide_com4 (more, bound),
+    # and from bound with a 2 ms physics step (bound_2ms, then bound_2ms_more)
     "results/gaits/transfer/push_com4": ("QuadsonGaitBound", BOUND_PUSH),
     "results/gaits/transfer/it2_push_com4": ("QuadsonGaitBound", [*BOUND_PUSH, "solver_iterations=2"]),
     "results/gaits/transfer/it4_push_wide_com4": ("QuadsonGaitBound", BOUND_IT4),
     "results/gaits/transfer/more": ("QuadsonGaitBound", BOUND_IT4),
+    "results/gaits/transfer/bound_2ms": (
+        "QuadsonGaitBound",
+        _replacing(BOUND_IT4, "reward.weights.forward_velocity_exp=4.0", "sim_dt=0.002"),
+    ),
+    "results/gaits/transfer/bound_2ms_more": (
+        "QuadsonGaitBound",
+        _replacing(BOUND_IT4, "reward.weights.forward_velocity_exp=4.0", "sim_dt=0.002"),
+    ),
     "results/gaits/transfer/bound": (
         "QuadsonGaitBound",
         _replacing(BOUND_IT4, "reward.weights.forward_velocity_exp=4.0"),
