@@ -5,11 +5,11 @@
 (`python eval/gaits.py ...` runs the same command.)
 
 For each gait, the controllers `gait` (open loop), `pid` (gait + seed 003's roll/pitch stabilizer)
-and, where RUNS/<gait> (or --run GAIT=DIR) holds a trained run, `policy` each walk --envs episodes of --seconds (seed
-000's 18.75 s by default) at the gait's own forward speed, on flat ground, one randomized model per
-episode (friction, masses, servo strength, latency, centre of mass), in the gait recipe's env config
-(env_config(gait=G, gait_recipe=True) with the training's feet-only contact; a run's own config for
-its policy). Reported per row (quadson_mjx.gait_eval): falls, mean speed against the command,
+and, where RUNS/<gait> (or --run GAIT=DIR) holds a trained run, `policy` each walk --envs episodes
+of --seconds (seed 000's 18.75 s by default) at the gait's own forward speed, on flat ground, one
+randomized model per episode (friction, masses, servo strength, latency, centre of mass), in the
+gait recipe's env config (env_config(gait=G, gait_recipe=True) with the training's feet-only
+contact; a run's own config for its policy). Reported per row (quadson_mjx.gait_eval): falls, mean speed against the command,
 roll/pitch std, and how often the feet's contact (from contact forces) matches the gait's phase table.
 --randomization KEY=VALUE (repeatable) sets one range of the randomized model for every row
 (`randomization.KEY`: friction, mass_scale, motor_strength, base_com_shift_m, latency_s; a range
