@@ -6,6 +6,14 @@ total mass [kg], weakest motor's strength factor and base CoM x [m], and its mea
 the 0.5 s before the fall [m/s]; then the means over all 256 models.
 
     python results/gaits/fall_diagnosis.py bound 1,2,3 > results/gaits/fall_diagnosis_bound.log
+
+Another run, and the evaluation's ranges (`randomization.KEY=LOW,HIGH`, as quadson-gaits
+--randomization sets them), after the seeds: the robot's bound at its 2 ms step, the draws of
+results/gaits/transfer/eval_cpu_bound_2ms_s*:
+
+    python results/gaits/fall_diagnosis.py bound 1,2,3 results/gaits/transfer/bound_2ms \
+        randomization.mass_scale=0.85,1.15 randomization.base_com_shift_m=-0.02,0.02 \
+        randomization.motor_strength=0.8,1.2 > results/gaits/transfer/fall_diagnosis_bound_2ms.log
 """
 
 import sys
@@ -22,9 +30,10 @@ from quadson_mjx.randomize import randomize
 
 gait = sys.argv[1]
 seeds = [int(s) for s in sys.argv[2].split(",")]
-policy, env_cfg, _, _ = training.load_policy(Path(f"results/gaits/before_finetune/{gait}"))
+run = Path(sys.argv[3]) if len(sys.argv) > 3 else Path(f"results/gaits/before_finetune/{gait}")
+policy, env_cfg, _, _ = training.load_policy(run)
 env_cfg = with_added_keys(env_cfg)
-env_cfg = apply_overrides(env_cfg, ["command_tracking=false", "randomize=true"])
+env_cfg = apply_overrides(env_cfg, ["command_tracking=false", "randomize=true", *sys.argv[4:]])
 env = LocomotionEnv(env_cfg)
 ctl = R.policy_controller(policy)
 n = 256
