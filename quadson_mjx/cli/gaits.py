@@ -137,7 +137,7 @@ PHYSICS_KEYS = ("sim_dt", "solver_iterations")
 
 def run_of(args, gait: str) -> Path | None:
     """The gait's --run, else RUNS/<gait> if it is a directory, else None (no trained run)."""
-    if gait in getattr(args, "run_dirs", {}):
+    if gait in args.run_dirs:
         return args.run_dirs[gait]
     run = Path(args.runs) / gait if args.runs else None
     return run if run is not None and run.is_dir() else None

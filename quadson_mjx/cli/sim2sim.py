@@ -191,12 +191,11 @@ def parse_ranges(items: list[str]) -> dict:
         if not eq or key in ranges:
             what = "is given twice" if eq else "is not KEY=LOW,HIGH"
             raise UsageError(f"--randomization {item}: {what}")
-        ranges[key] = tuple(pair.split(","))
         try:
-            S.check_ranges({key: ranges[key]})
+            ranges.update(S.check_ranges({key: tuple(pair.split(","))}))
         except ValueError as e:
             raise UsageError(f"--randomization {item}: {e}") from None
-    return S.check_ranges(ranges)
+    return ranges
 
 
 def run_line(row: dict) -> str:
