@@ -7,6 +7,7 @@
 # trained on (the committed bound's trained ones; the MJX gait evaluation's), and every variant is
 # evaluated in MJX on each of EVAL_SEEDS (default 1) under the gait evaluation's ranges.
 #   bash results/gaits/transfer/sweep.sh OUT_DIR "NAME:TRAIN ARGS" ...
+# A variant named NAME@RUN continues RUN instead of FROM.
 # Output: OUT_DIR/NAME/bound (the run), OUT_DIR/NAME.npz, OUT_DIR/sim2sim_{trained,evaluated}/,
 # OUT_DIR/eval_NAME_sS.{json,log}, OUT_DIR/NAME.console (the training's console).
 set -u
@@ -21,9 +22,11 @@ names=()
 for v in "$@"; do
   name=${v%%:*}
   args=${v#*:}
+  from=${FROM:-results/gaits/bound}
+  if [[ $name == *@* ]]; then from=${name#*@}; name=${name%%@*}; fi
   names+=("$name")
   # shellcheck disable=SC2086  # args holds several words
-  timeout -s TERM "${TRAIN_LIMIT_S:-100000}" python3 train/ppo_mjx.py --init-from "${FROM:-results/gaits/bound}" \
+  timeout -s TERM "${TRAIN_LIMIT_S:-100000}" python3 train/ppo_mjx.py --init-from "$from" \
     --run-dir "$out/$name/bound" --ppo.num_timesteps="$steps" --ppo.num_evals=5 $args \
     > "$out/$name.console" 2>&1 &
   pids+=($!)
