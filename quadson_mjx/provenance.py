@@ -1,5 +1,6 @@
-"""Run provenance: the versions of Python, jax, brax, MuJoCo and numpy, the devices and the git revision,
-saved beside every checkpoint and inside every MCAP file. Imports nothing of the project."""
+"""Run provenance: the versions of Python, jax, brax, MuJoCo and numpy, the devices, jax's default
+float32 matmul precision and the git revision, saved beside every checkpoint and inside every MCAP
+file. Imports nothing of the project."""
 
 from __future__ import annotations
 
@@ -23,6 +24,9 @@ def versions(source: Path | None = None) -> dict[str, str]:
     out["mujoco"] = mujoco.__version__
     out["numpy"] = np.__version__
     out["devices"] = ", ".join(d.device_kind for d in jax.devices())
+    # "default" lets an NVIDIA GPU since Ampere multiply float32 matrices in TF32, MJX's physics
+    # included; JAX_DEFAULT_MATMUL_PRECISION=highest keeps them float32, as on the CPU
+    out["matmul_precision"] = str(jax.config.jax_default_matmul_precision or "default")
     out["git_revision"], out["git_tree"] = "unknown", "unknown"
     cwd = Path(__file__).parent if source is None else source
 

@@ -28,3 +28,11 @@ def test_git_revision_and_tree_state(tmp_path):
     v = provenance.versions(tmp_path)
     assert v["git_revision"] == head and v["git_tree"] == "modified"
     assert {"python", "jax", "brax", "mujoco", "numpy", "devices"} <= v.keys()
+
+
+def test_versions_name_the_matmul_precision():
+    import jax
+
+    assert provenance.versions()["matmul_precision"] == "default"  # the test session sets none
+    with jax.default_matmul_precision("highest"):
+        assert provenance.versions()["matmul_precision"] == "highest"
