@@ -112,7 +112,7 @@ COMMITTED_RUNS = {
     "results/gaits/gallop": ("QuadsonGaitGallop", []),
     # fine-tuned from results/gaits/bound for MuJoCo C (results/gaits/transfer/README.md): pushes,
     # a CoM range to +4 cm, the solver's iterations; then from it4_push_wide_com4 (more, bound),
-    # and from bound with a 2 ms physics step (bound_2ms, then bound_2ms_more)
+    # and from bound with a 2 ms physics step (bound_2ms; from it bound_2ms_more and bound_2ms_fric; from bound_2ms_more bound_2ms_pat)
     "results/gaits/transfer/push_com4": ("QuadsonGaitBound", BOUND_PUSH),
     "results/gaits/transfer/it2_push_com4": ("QuadsonGaitBound", [*BOUND_PUSH, "solver_iterations=2"]),
     "results/gaits/transfer/it4_push_wide_com4": ("QuadsonGaitBound", BOUND_IT4),
@@ -128,6 +128,26 @@ COMMITTED_RUNS = {
     "results/gaits/transfer/bound": (
         "QuadsonGaitBound",
         _replacing(BOUND_IT4, "reward.weights.forward_velocity_exp=4.0"),
+    ),
+    # from bound_2ms with the forward term at 5 and sticky ground (friction to 1.3)
+    "results/gaits/transfer/bound_2ms_fric": (
+        "QuadsonGaitBound",
+        _replacing(
+            BOUND_IT4,
+            "reward.weights.forward_velocity_exp=5.0",
+            "randomization.friction=0.5,1.3",
+            "sim_dt=0.002",
+        ),
+    ),
+    # from bound_2ms_more with the forward and pattern terms raised
+    "results/gaits/transfer/bound_2ms_pat": (
+        "QuadsonGaitBound",
+        _replacing(
+            BOUND_IT4,
+            "reward.weights.forward_velocity_exp=6.0",
+            "reward.weights.contact_pattern=10.0",
+            "sim_dt=0.002",
+        ),
     ),
     # trials of a fall penalty (not kept as the gaits' policies)
     "results/gaits/trials_termination/t_pace": ("QuadsonGaitPace", ["reward.weights.termination=-100"]),
