@@ -42,7 +42,7 @@ from quadson_mjx.env_model import (
     put_model,
     training_model,
 )
-from quadson_mjx.quat import quat_mul, quat_rotate
+from quadson_mjx.quat import quat_mul, quat_rotate, quat_to_rpy
 from quadson_mjx.robots import get_robot
 from quadson_mjx.terrain_tiles import tile_spec
 
@@ -118,7 +118,12 @@ class LocomotionEnv(Env):
                 robot.legs, robot.motor_joints, cfg.command_tracking
             )
         self._critic_spec = (
-            obs_spec.privileged_observation(robot.legs, self._obs_spec) if cfg.asymmetric_critic else None
+            obs_spec.privileged_observation(robot.legs, self._obs_spec, cfg.critic_scan_points)
+            if cfg.asymmetric_critic
+            else None
+        )
+        self._scan = jnp.asarray(
+            terrain.scan_offsets(cfg.critic_scan_points, cfg.critic_scan_spacing_m), jnp.float32
         )
         self._ctrl_dt = float(cfg.ctrl_dt)
         self.episode_length = int(round(cfg.episode_length_s / cfg.ctrl_dt))
@@ -554,7 +559,11 @@ class LocomotionEnv(Env):
             ]
         )
         feet = data.geom_xpos[self._foot_geoms]  # (4, 3) world, at the last substep's start
-        return sensors.privileged_parts(
+        scan = {}
+        if self._scan.shape[0]:
+            yaw = quat_to_rpy(data.qpos[3:7])[2]
+            scan["ground_scan"] = terrain.ground_scan(self._field, data.qpos[:2], yaw, self._scan)
+        return scan | sensors.privileged_parts(
             self._field,
             data.qpos,
             data.qvel,

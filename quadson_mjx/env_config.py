@@ -71,6 +71,8 @@ ENV_KEYS_ADDED = {
     "observation": "true_state",
     "obs_history": 1,
     "asymmetric_critic": False,
+    "critic_scan_points": 0,
+    "critic_scan_spacing_m": 0.05,
     "fivebar_model": "full",
     **{f"tiles.{k}": v for k, v in TILES.items()},
     "task": "locomotion",
@@ -252,6 +254,11 @@ def env_config(
             "observation": observation,
             "obs_history": 1,
             "asymmetric_critic": asymmetric_critic,
+            # the critic's ground scan (asymmetric_critic, locomotion): an n x n grid of ground
+            # heights (n = critic_scan_points, 0: none), spacing apart, centred under the base and
+            # turned with its heading (terrain.ground_scan)
+            "critic_scan_points": 0,
+            "critic_scan_spacing_m": 0.05,
             "sensor": dict(SENSOR_MODEL),
             "randomize": randomize,
             "randomization": {
@@ -377,6 +384,8 @@ ENV_RULES: dict[str, Rule] = {
     "observation": Rule("name"),
     "obs_history": Rule("int", 1, 16, "ticks"),
     "asymmetric_critic": Rule("bool"),
+    "critic_scan_points": Rule("int", 0, 31),
+    "critic_scan_spacing_m": Rule("number", 0.0, 0.5, _M, lo_open=True),
     "sensor.gravity_noise": Rule("number", 0.0, 1.0, "(of a unit vector)"),
     "sensor.gyro_noise_rps": Rule("number", 0.0, 10.0, "rad/s"),
     "sensor.gyro_bias_rps": Rule("number", 0.0, 10.0, "rad/s"),
@@ -479,4 +488,8 @@ def check_env_config(cfg) -> None:
         raise ValueError(f"env.observation is {cfg.observation!r}; choose from {list(OBSERVATIONS)}")
     if cfg.obs_history > 1 and cfg.observation != "sensors":
         raise ValueError("env.obs_history > 1 needs env.observation=sensors")
+    if cfg.critic_scan_points and (not cfg.asymmetric_critic or cfg.task != "locomotion"):
+        raise ValueError(
+            "env.critic_scan_points > 0 needs env.asymmetric_critic=true and the locomotion task"
+        )
     check_getup_config(cfg)

@@ -248,11 +248,12 @@ def getup_action(motor_joints: Sequence[str]) -> Spec:
     )
 
 
-def privileged_observation(legs: Sequence[str], actor: Spec) -> Spec:
+def privileged_observation(legs: Sequence[str], actor: Spec, scan_points: int = 0) -> Spec:
     """The critic's observation (asymmetric actor-critic): the actor's entries, then what only the
     simulator knows: the base's true velocity and height above the ground under it, each foot's
     contact and height above the ground under it, the ground under each foot relative to the ground
-    under the base, and the episode's randomized physics and sensor parameters."""
+    under the base, and the episode's randomized physics and sensor parameters; with scan_points n
+    > 0 last an n x n grid of ground heights around the base (terrain.ground_scan)."""
     legs = tuple(legs)
     sim = [
         entry("true_lin_vel", ("x", "y", "z"), "m/s", "simulator", "base velocity, body frame"),
@@ -276,4 +277,15 @@ def privileged_observation(legs: Sequence[str], actor: Spec) -> Spec:
             "the episode's sensor errors",
         ),
     ]
+    if scan_points:
+        cells = tuple(f"{i}.{j}" for i in range(scan_points) for j in range(scan_points))
+        sim.append(
+            entry(
+                "ground_scan",
+                cells,
+                "m",
+                "simulator",
+                "ground around the base (heading frame) - ground under it",
+            )
+        )
     return Spec(tuple(actor.entries) + tuple(sim))

@@ -83,3 +83,19 @@ def on_field(field: Heightfield | None, xy: jnp.ndarray, margin_m: float = 0.0) 
         return jnp.ones(xy.shape[:-1], bool)
     local = jnp.abs(xy - field.origin[:2])
     return jnp.all(local <= field.half_size - margin_m, axis=-1)
+
+
+def scan_offsets(points: int, spacing_m: float) -> np.ndarray:
+    """(points**2, 2) x, y offsets [m] of a square grid, spacing_m apart, centred on 0; x-major
+    (the first `points` rows share the most backward x)."""
+    side = (np.arange(points) - (points - 1) / 2.0) * spacing_m
+    x, y = np.meshgrid(side, side, indexing="ij")
+    return np.stack([x.ravel(), y.ravel()], axis=-1)
+
+
+def ground_scan(field: Heightfield | None, xy: jnp.ndarray, yaw, offsets: jnp.ndarray) -> jnp.ndarray:
+    """The ground around a robot: xy (2,) world [m], yaw [rad], offsets (n, 2) in its heading frame
+    (scan_offsets) -> (n,) ground height at each offset minus the ground under xy [m]."""
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    world = xy + jnp.stack([c * offsets[:, 0] - s * offsets[:, 1], s * offsets[:, 0] + c * offsets[:, 1]], -1)
+    return ground_height(field, world) - ground_height(field, xy)

@@ -123,6 +123,49 @@ def test_spawns_on_their_tile_and_never_inside_the_ground(env, spawn):
     assert np.median(closest) < SPAWN_CLEARANCE_M + 0.002
 
 
+def test_critic_ground_scan_is_mujocos_ground_around_the_robot(env):
+    """env.critic_scan_points: the critic's grid of ground heights on spawns over every tile type at
+    the top level, against MuJoCo's ray casts at the grid's points turned by the spawn's heading by
+    hand; the actor's observation is unchanged, the critic's 9 values longer."""
+    cfg = _config().unlock()
+    cfg.critic_scan_points, cfg.critic_scan_spacing_m = 3, 0.1
+    cfg.lock()
+    scanning = LocomotionEnv(cfg)
+    assert scanning.obs_spec == env.obs_spec and scanning.critic_spec.size == env.critic_spec.size + 9
+    assert scanning.critic_spec.entries[-1].name == "ground_scan"
+    types = np.repeat(np.arange(len(env.tiles.types)), 2)
+    levels = np.full(types.size, env.tiles.levels - 1)
+    states = jax.jit(jax.vmap(scanning.reset_on_tile))(
+        jax.random.split(jax.random.PRNGKey(5), types.size), types, levels
+    )
+    m, d = scanning.mj_model, mujoco.MjData(scanning.mj_model)
+    mujoco.mj_forward(m, d)  # the field's pose, which the rays need
+    group = np.zeros(6, np.uint8)
+    group[m.geom_group[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, terrain.FLOOR_GEOM)]] = 1
+    top, geom = 2.0, np.zeros(1, np.int32)
+
+    def ray(x, y):
+        dist = mujoco.mj_ray(m, d, np.array([x, y, top]), np.array([0.0, 0, -1]), group, 1, -1, geom)
+        assert dist >= 0, (x, y)  # a miss is -1
+        return top - dist
+
+    offsets = [(dx, dy) for dx in (-0.1, 0.0, 0.1) for dy in (-0.1, 0.0, 0.1)]
+    spans = []
+    for q, critic in zip(
+        np.asarray(states.pipeline_state.qpos), np.asarray(states.obs["privileged_state"]), strict=True
+    ):
+        yaw = 2 * np.arctan2(q[6], q[3])  # a spawn turns about z only
+        c, s = np.cos(yaw), np.sin(yaw)
+        want = [ray(q[0] + c * dx - s * dy, q[1] + s * dx + c * dy) - ray(q[0], q[1]) for dx, dy in offsets]
+        np.testing.assert_allclose(scanning.critic_spec.split(critic)["ground_scan"], want, atol=1e-5)
+        spans.append(np.ptp(want))
+    assert max(spans) > 0.02  # slopes and stairs show
+    cfg.unlock()
+    cfg.asymmetric_critic = False
+    with pytest.raises(ValueError, match="env.critic_scan_points > 0 needs env.asymmetric_critic=true"):
+        check_env_config(cfg)
+
+
 def test_curriculum_and_respawn_on_hand_set_episodes(env, wrapped):
     """Four robots one step before their episode's end, with the distance covered and asked for set
     by hand: covered (up), short (down), in between (kept), fell (down); each restarts on its
