@@ -303,9 +303,8 @@ class LocomotionEnv(Env):
         tile_type, level = jnp.asarray(tile_type, jnp.int32), jnp.asarray(level, jnp.int32)
         xy = terrain_tiles.spawn_xy(self._tiles, k_xy, tile_type, level, self._config.tiles.spawn_margin_m)
         yaw = jax.random.uniform(k_yaw, (), minval=-jnp.pi, maxval=jnp.pi)
-        c, s = jnp.cos(yaw), jnp.sin(yaw)
         p = self._contact_points
-        points_xy = xy + jnp.stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]], axis=-1)
+        points_xy = terrain.turned(xy, yaw, p)
         home_z = self._home_qpos[2]
         f, b = self._spawn_spheres, self._spawn_points  # spheres on a disc of samples, points once
         lift = jnp.maximum(

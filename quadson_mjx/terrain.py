@@ -93,9 +93,14 @@ def scan_offsets(points: int, spacing_m: float) -> np.ndarray:
     return np.stack([x.ravel(), y.ravel()], axis=-1)
 
 
+def turned(xy: jnp.ndarray, yaw, offsets: jnp.ndarray) -> jnp.ndarray:
+    """World x, y [m] of offsets (n, 2+) in the heading frame of a robot at xy (2,) with heading yaw
+    [rad] (only their x, y are read) -> (n, 2)."""
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    return xy + jnp.stack([c * offsets[:, 0] - s * offsets[:, 1], s * offsets[:, 0] + c * offsets[:, 1]], -1)
+
+
 def ground_scan(field: Heightfield | None, xy: jnp.ndarray, yaw, offsets: jnp.ndarray) -> jnp.ndarray:
     """The ground around a robot: xy (2,) world [m], yaw [rad], offsets (n, 2) in its heading frame
     (scan_offsets) -> (n,) ground height at each offset minus the ground under xy [m]."""
-    c, s = jnp.cos(yaw), jnp.sin(yaw)
-    world = xy + jnp.stack([c * offsets[:, 0] - s * offsets[:, 1], s * offsets[:, 0] + c * offsets[:, 1]], -1)
-    return ground_height(field, world) - ground_height(field, xy)
+    return ground_height(field, turned(xy, yaw, offsets)) - ground_height(field, xy)
