@@ -11,13 +11,19 @@ than one step (gait_eval.tolerant_agreement, as pattern_match_1step counts it) i
 * the policy's foot offset then (the action times action_scale_m, gait frame x, y, z [mm]) against
   its mean on the leg's swing steps that match: whether the policy puts the foot down.
 
-Last, the pattern per quarter of the randomized models by total mass, base CoM x and the weakest
-motor's strength: whether the misses belong to some models.
+Last, the pattern per quarter of the randomized models by total mass, base CoM x, the weakest
+motor's strength and the episode's own forward speed (from 1 s on, over the table's): whether the
+misses belong to some models, and whether the episodes that run faster keep the table less well.
 
 Then the share of the evaluated steps each class makes fail (a step fails when any foot misses), per
 leg pair. The steps, the settle time and the first-episode rule are gait_eval.gait_stats's.
 
     python results/gaits/pattern_diagnosis.py bound 1 > results/gaits/pattern_diagnosis_bound_s1.log
+
+A third argument names another run of the gait, a fourth on more env overrides (the run's own
+physics, such as `sim_dt`, come from its config):
+
+    python results/gaits/pattern_diagnosis.py bound 1 results/gaits/transfer/bound_2ms_fric
 """
 
 import sys
@@ -37,13 +43,16 @@ RANGES = ["mass_scale=0.85,1.15", "base_com_shift_m=-0.02,0.02", "motor_strength
 SATURATED = 0.98  # of the motor's randomized force range
 
 gait, seed = sys.argv[1], int(sys.argv[2])
-n_envs = int(sys.argv[3]) if len(sys.argv) > 3 else 256
-policy, env_cfg, _, _ = training.load_policy(Path(f"results/gaits/{gait}"))
-env_cfg = apply_overrides(with_added_keys(env_cfg), ["command_tracking=false", "randomize=true"])
+run = Path(sys.argv[3]) if len(sys.argv) > 3 else Path(f"results/gaits/{gait}")
+n_envs = 256
+policy, env_cfg, _, _ = training.load_policy(run)
+env_cfg = apply_overrides(
+    with_added_keys(env_cfg), ["command_tracking=false", "randomize=true", *sys.argv[4:]]
+)
 env_cfg = apply_overrides(env_cfg, [f"randomization.{r}" for r in RANGES], prefix="env.")
 env = LocomotionEnv(env_cfg)
 rng = jax.random.fold_in(jax.random.PRNGKey(seed), 2)  # quadson-gaits' draws for its policy row
-fields = ("done", "foot_force", "scheduled_stance", "actuator_force", "action")
+fields = ("done", "foot_force", "scheduled_stance", "actuator_force", "action", "lin_vel", "command")
 parts = []
 steps = int(round(SEED_EPISODE_S / env.ctrl_dt))
 for _, seg in R.run(env, R.policy_controller(policy), rng, n_envs, steps, randomize=True):
@@ -80,7 +89,7 @@ sat = (np.abs(J["actuator_force"]) >= SATURATED * force_max[None]).reshape(T, n_
 legs = env.robot.legs
 n_steps = int(use.sum())
 fail = miss.any(-1)
-print(f"{gait}, seed {seed}: {n_envs} episodes, {n_steps} evaluated steps")
+print(f"{gait} ({run}), seed {seed}: {n_envs} episodes, {n_steps} evaluated steps")
 print(f"pattern +-1 step: {100 * (1 - fail[use].mean()):.2f} % (steps where every foot agrees)")
 print(f"foot-steps that miss: {int(miss.sum())} of {4 * n_steps}")
 
@@ -145,13 +154,18 @@ for i, leg in enumerate(legs):
         )
 
 fail_share = np.array([fail[use[:, b], b].mean() if use[:, b].any() else np.nan for b in range(n_envs)])
+speed = np.array(
+    [J["lin_vel"][use[:, b], b, 0].mean() if use[:, b].any() else np.nan for b in range(n_envs)]
+) / float(J["command"][0, 0, 0])
 models = {
     "total mass [kg]": np.asarray(sys_v.body_mass.sum(1)),
     "base CoM x [m]": np.asarray(sys_v.body_ipos[:, env.base_body, 0]),
     "weakest motor strength": force_max.min(1) / float(env.sys.actuator_forcerange[0, 1]),
+    "speed / table": speed,
 }
 print("\npattern +-1 step [%] per quarter of the models (lowest quarter first):")
 for name, v in models.items():
+    v = np.where(np.isnan(v), np.nanmin(v), v)  # an episode that fell before 1 s goes to the slowest quarter
     edges = np.quantile(v, [0.25, 0.5, 0.75])
     q = np.digitize(v, edges)
     cells = []
@@ -159,3 +173,8 @@ for name, v in models.items():
         sel = q == k
         cells.append(f"{v[sel].min():.3f}-{v[sel].max():.3f}: {100 * (1 - np.nanmean(fail_share[sel])):.1f}")
     print(f"  {name:24s} " + " | ".join(cells))
+ok_b = ~np.isnan(fail_share) & ~np.isnan(speed)
+print(
+    f"mean speed / table {np.nanmean(speed):.3f}; correlation of an episode's speed and its pattern: "
+    f"{np.corrcoef(speed[ok_b], 1 - fail_share[ok_b])[0, 1]:+.2f}"
+)

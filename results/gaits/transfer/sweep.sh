@@ -7,7 +7,8 @@
 # trained on (the committed bound's trained ones; the MJX gait evaluation's), and every variant is
 # evaluated in MJX on each of EVAL_SEEDS (default 1) under the gait evaluation's ranges.
 #   bash results/gaits/transfer/sweep.sh OUT_DIR "NAME:TRAIN ARGS" ...
-# A variant named NAME@RUN continues RUN instead of FROM.
+# A variant named NAME@RUN continues RUN instead of FROM. TRAIN=only stops after the trainings;
+# TRAIN=0 skips them and evaluates the runs already in OUT_DIR (a second command on the same machine).
 # Output: OUT_DIR/NAME/bound (the run), OUT_DIR/NAME.npz, OUT_DIR/sim2sim_{trained,evaluated}/,
 # OUT_DIR/eval_NAME_sS.{json,log}, OUT_DIR/NAME.console (the training's console).
 set -u
@@ -25,6 +26,7 @@ for v in "$@"; do
   from=${FROM:-results/gaits/bound}
   if [[ $name == *@* ]]; then from=${name#*@}; name=${name%%@*}; fi
   names+=("$name")
+  [ "${TRAIN:-1}" = 0 ] && continue
   # shellcheck disable=SC2086  # args holds several words
   timeout -s TERM "${TRAIN_LIMIT_S:-100000}" python3 train/ppo_mjx.py --init-from "$from" \
     --run-dir "$out/$name/bound" --ppo.num_timesteps="$steps" --ppo.num_evals=5 $args \
@@ -32,6 +34,7 @@ for v in "$@"; do
   pids+=($!)
 done
 for p in "${pids[@]}"; do wait "$p"; done
+[ "${TRAIN:-1}" = only ] && exit 0
 python3 -m quadson_mjx.export results/gaits/bound "$out/committed.npz" > /dev/null || exit 1
 policies=("$out/committed.npz")
 for name in "${names[@]}"; do
