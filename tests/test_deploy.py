@@ -110,7 +110,7 @@ def test_loop_motor_targets_equal_the_env_step_start_ramp_included(gait_action):
     assert_loop_targets_match_env(env, loop, np.array([0.25, -0.05, 0.3]))
 
 
-@pytest.mark.parametrize("name", ["walk", "trot", "pace", "bound", "gallop", "transfer/bound_2ms_fric"])
+@pytest.mark.parametrize("name", ["walk", "trot", "pace", "bound", "gallop", "transfer/bound_2ms_swing"])
 def test_committed_gait_policies_loop_targets_equal_their_envs(name):
     # the five gait policies (trained without commands, scaled gait tables, 3 ticks of sensors) and
     # the robot's bound (a 2 ms physics step: 10 substeps a control step): the loop's gait command

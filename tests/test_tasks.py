@@ -75,6 +75,10 @@ BOUND_IT4 = _replacing(
     "randomization.mass_scale=0.8,1.3",
     "randomization.latency_s=0.0,0.03",
 )
+BOUND_FRIC = _replacing(
+    BOUND_IT4, "reward.weights.forward_velocity_exp=5.0", "randomization.friction=0.5,1.3", "sim_dt=0.002"
+)
+BOUND_FAST = _replacing(BOUND_FRIC, "reward.target_gait_speed=false", "reward.forward_target=0.55")
 COMMITTED_RUNS = {
     # trained before the robust recipe observed the robot's sensors: its true_state twin
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
@@ -130,15 +134,7 @@ COMMITTED_RUNS = {
         _replacing(BOUND_IT4, "reward.weights.forward_velocity_exp=4.0"),
     ),
     # from bound_2ms with the forward term at 5 and sticky ground (friction to 1.3)
-    "results/gaits/transfer/bound_2ms_fric": (
-        "QuadsonGaitBound",
-        _replacing(
-            BOUND_IT4,
-            "reward.weights.forward_velocity_exp=5.0",
-            "randomization.friction=0.5,1.3",
-            "sim_dt=0.002",
-        ),
-    ),
+    "results/gaits/transfer/bound_2ms_fric": ("QuadsonGaitBound", BOUND_FRIC),
     # from bound_2ms_more with the forward and pattern terms raised
     "results/gaits/transfer/bound_2ms_pat": (
         "QuadsonGaitBound",
@@ -148,6 +144,14 @@ COMMITTED_RUNS = {
             "reward.weights.contact_pattern=10.0",
             "sim_dt=0.002",
         ),
+    ),
+    # from bound_2ms_fric with the forward kernel centred at 0.55 m/s (bound_2ms_t55), on from it
+    # (bound_2ms_fast), and from that with feet touching in swing charged 3 times more
+    "results/gaits/transfer/bound_2ms_t55": ("QuadsonGaitBound", BOUND_FAST),
+    "results/gaits/transfer/bound_2ms_fast": ("QuadsonGaitBound", BOUND_FAST),
+    "results/gaits/transfer/bound_2ms_swing": (
+        "QuadsonGaitBound",
+        _replacing(BOUND_FAST, "reward.weights.swing_touch=-6.0"),
     ),
     # trials of a fall penalty (not kept as the gaits' policies)
     "results/gaits/trials_termination/t_pace": ("QuadsonGaitPace", ["reward.weights.termination=-100"]),
