@@ -42,7 +42,7 @@ from quadson_mjx.env_model import (
     put_model,
     training_model,
 )
-from quadson_mjx.quat import quat_mul, quat_rotate, quat_to_rpy
+from quadson_mjx.quat import quat_mul, quat_rotate
 from quadson_mjx.robots import get_robot
 from quadson_mjx.terrain_tiles import tile_spec
 
@@ -558,11 +558,7 @@ class LocomotionEnv(Env):
             ]
         )
         feet = data.geom_xpos[self._foot_geoms]  # (4, 3) world, at the last substep's start
-        scan = {}
-        if self._scan.shape[0]:
-            yaw = quat_to_rpy(data.qpos[3:7])[2]
-            scan["ground_scan"] = terrain.ground_scan(self._field, data.qpos[:2], yaw, self._scan)
-        return scan | sensors.privileged_parts(
+        return sensors.privileged_parts(
             self._field,
             data.qpos,
             data.qvel,
@@ -572,6 +568,7 @@ class LocomotionEnv(Env):
             physics,
             info,
             sys.opt.timestep,
+            self._scan,
         )
 
     def _get_obs(self, data, info, base_state=None):

@@ -169,16 +169,22 @@ def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -
     return parts, info
 
 
-def privileged_parts(field, qpos, qvel, feet, foot_radius, contact, physics, info: dict, timestep) -> dict:
+def privileged_parts(
+    field, qpos, qvel, feet, foot_radius, contact, physics, info: dict, timestep, scan=None
+) -> dict:
     """The simulator-only entries of obs_spec.privileged_observation: field the terrain's height
     field, qpos (nq,), qvel (nv,), feet (4, 3) foot positions [m] (world), foot_radius (4,) [m],
     contact (4,) bool, physics (4,) the episode's friction, mass scale, motor strength and actuation
-    latency [s]; info: its sensor errors (absent for a true_state observation: zeros), timestep [s]."""
-    _, lin_vel, ang_vel = base_state(qpos, qvel)
+    latency [s]; info: its sensor errors (absent for a true_state observation: zeros), timestep [s];
+    scan: (n, 2) heading-frame offsets of the ground scan (terrain.scan_offsets; None or n = 0: none)."""
+    rpy, lin_vel, ang_vel = base_state(qpos, qvel)
     ground = terrain.ground_height(field, qpos[:2])
     under_feet = terrain.ground_height(field, feet[:, :2])
     latency = info.get("sensor_latency_steps", jnp.zeros((), jnp.int32)) * timestep
-    return {
+    parts = {}
+    if scan is not None and scan.shape[0]:
+        parts["ground_scan"] = terrain.ground_scan(field, qpos[:2], rpy[2], scan, under=ground)
+    return parts | {
         "true_lin_vel": lin_vel,
         "true_ang_vel": ang_vel,
         "base_height": (qpos[2] - ground)[None],

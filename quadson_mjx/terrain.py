@@ -100,7 +100,11 @@ def turned(xy: jnp.ndarray, yaw, offsets: jnp.ndarray) -> jnp.ndarray:
     return xy + jnp.stack([c * offsets[:, 0] - s * offsets[:, 1], s * offsets[:, 0] + c * offsets[:, 1]], -1)
 
 
-def ground_scan(field: Heightfield | None, xy: jnp.ndarray, yaw, offsets: jnp.ndarray) -> jnp.ndarray:
+def ground_scan(
+    field: Heightfield | None, xy: jnp.ndarray, yaw, offsets: jnp.ndarray, under=None
+) -> jnp.ndarray:
     """The ground around a robot: xy (2,) world [m], yaw [rad], offsets (n, 2) in its heading frame
-    (scan_offsets) -> (n,) ground height at each offset minus the ground under xy [m]."""
-    return ground_height(field, turned(xy, yaw, offsets)) - ground_height(field, xy)
+    (scan_offsets) -> (n,) ground height at each offset minus the ground under xy [m]. under: that
+    ground [m] where the caller has it (else queried here)."""
+    under = ground_height(field, xy) if under is None else under
+    return ground_height(field, turned(xy, yaw, offsets)) - under
