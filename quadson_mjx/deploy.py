@@ -66,6 +66,7 @@ class LoopConfig(NamedTuple):
     gait_action_range: float
     observation: str  # "sensors" or "true_state" (env_config.OBSERVATIONS)
     obs_history: int
+    yaw_error_tau_s: float  # s; 0: no yaw_error entry (obs_spec.yaw_error_step)
     command_range: np.ndarray  # (3, 2) the trained command range (vx, vy, yaw rate)
 
     @classmethod
@@ -82,6 +83,7 @@ class LoopConfig(NamedTuple):
             gait_action_range=float(cfg.get("gait_action_range", 0.5)),
             observation=str(cfg.get("observation", "true_state")),
             obs_history=int(cfg.get("obs_history", 1)),
+            yaw_error_tau_s=float(cfg.get("yaw_error_tau_s", 0.0)),
             command_range=np.array([rng.get(k, (-np.inf, np.inf)) for k in ("vx", "vy", "yaw_rate")], float),
         )
 
@@ -95,7 +97,12 @@ class LoopConfig(NamedTuple):
         r = self.robot
         if self.observation == "sensors":
             return obs_spec.sensor_observation(
-                r.legs, r.motor_names, self.action_size, self.obs_history, self.command_tracking
+                r.legs,
+                r.motor_names,
+                self.action_size,
+                self.obs_history,
+                self.command_tracking,
+                yaw_error=bool(self.yaw_error_tau_s),
             )
         return obs_spec.locomotion_observation(r.legs, r.motor_names, self.command_tracking)
 
@@ -159,7 +166,7 @@ class DeployLoop:
         if safety.max_rate_rps is None:
             safety = safety._replace(max_rate_rps=r.servo_speed_rps)
         self.safety = SafetyLayer(safety, r.motor_limits, r.home_motor, c.ctrl_dt, clamp=r.clamp)
-        self.observer = ObservationBuilder(c.obs_spec, r, c.action_size)
+        self.observer = ObservationBuilder(c.obs_spec, r, c.action_size, c.yaw_error_tau_s)
         # the command a policy trained without commands walked at (the gait's own speed)
         self.gait_command = np.array([r.seed_speed, 0.0, 0.0])
         self.reset()

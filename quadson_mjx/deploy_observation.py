@@ -14,6 +14,8 @@ Entries, by name:
   base_lin_vel (3)   the estimator's velocity [m/s] (true_state policies).
   phase_sin, phase_cos (4)   sin, cos of 2 pi x each leg's gait phase at the loop's clock.
   command (3)        the command.
+  yaw_error (1)      obs_spec.yaw_error_step of the gyro's z and the command's yaw rate: 0 at the
+                     first tick after a reset or a resync, then integrated every committed tick.
 After a fault the history restarts from the next good tick (as after reset, the last action kept).
 """
 
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from quadson_mjx.obs_spec import yaw_error_step
 from quadson_mjx.quat import quat_mul, quat_rotate_inverse, quat_to_rpy
 
 _DOWN = np.array([0.0, 0.0, -1.0])
@@ -34,8 +37,11 @@ def _max_lag(spec) -> int:
 class ObservationBuilder:
     """The observation's state between ticks: history, previous encoders, last action, heading."""
 
-    def __init__(self, spec, robot, action_size: int):
+    def __init__(self, spec, robot, action_size: int, yaw_error_tau_s: float = 0.0):
         self.spec, self.robot, self.action_size = spec, robot, action_size
+        self.yaw_error_tau_s = float(yaw_error_tau_s)
+        if "yaw_error" in {e.name for e in spec.entries} and not self.yaw_error_tau_s > 0:
+            raise ValueError("the observation has a yaw_error entry but no yaw_error_tau_s > 0")
         self.lags = _max_lag(spec)
         self.heading = None  # (4,) quaternion rotating the world by -yaw0 about z, or None
         self._pending_heading = False
@@ -46,6 +52,7 @@ class ObservationBuilder:
         self.history = None  # [tick 0 (now), tick -1, ...] of the history entries
         self.prev_motor = None
         self.last_action = np.zeros(self.action_size, np.float64)
+        self.yaw_error = np.zeros(1)
         self._pending = None
 
     def reset_heading(self, imu_quat_wxyz=None) -> None:
@@ -72,7 +79,11 @@ class ObservationBuilder:
             q = quat_mul(self.heading, q)
         if resync:
             self.history, self.prev_motor = None, None
-        vel = np.zeros(12) if self.prev_motor is None else (motor_pos - self.prev_motor) / ctrl_dt
+        first = self.prev_motor is None
+        vel = np.zeros(12) if first else (motor_pos - self.prev_motor) / ctrl_dt
+        yaw_error = np.zeros(1)
+        if self.yaw_error_tau_s and not first:
+            yaw_error = yaw_error_step(self.yaw_error, gyro[2:], command[2:], ctrl_dt, self.yaw_error_tau_s)
         now = {
             "gravity": quat_rotate_inverse(q, _DOWN),
             "gyro": gyro,
@@ -90,17 +101,18 @@ class ObservationBuilder:
             "phase_sin": lambda: np.sin(phase),
             "phase_cos": lambda: np.cos(phase),
             "command": lambda: command,
+            "yaw_error": lambda: yaw_error,
         }
         parts = {}
         for e in self.spec.entries:
             name, _, lag = e.name.partition("@-")
             parts[e.name] = history[int(lag or 0)][name] if name in now else known[name]()
             parts[e.name] = np.asarray(parts[e.name], np.float64).reshape(e.size)
-        self._pending = (history, motor_pos)
+        self._pending = (history, motor_pos, yaw_error)
         return self.spec.assemble(parts).astype(np.float32)
 
     def commit(self, action) -> None:
         """The tick's policy output was used: the history moves on; action (clipped) is the next
         tick's last_action."""
-        self.history, self.prev_motor = self._pending
+        self.history, self.prev_motor, self.yaw_error = self._pending
         self.last_action = np.asarray(action, np.float64)

@@ -111,7 +111,12 @@ class LocomotionEnv(Env):
         self._sensor_obs = cfg.observation == "sensors"
         if self._sensor_obs:
             self._obs_spec = obs_spec.sensor_observation(
-                robot.legs, robot.motor_joints, self._action_spec.size, cfg.obs_history, cfg.command_tracking
+                robot.legs,
+                robot.motor_joints,
+                self._action_spec.size,
+                cfg.obs_history,
+                cfg.command_tracking,
+                yaw_error=bool(cfg.yaw_error_tau_s),
             )
         else:
             self._obs_spec = obs_spec.locomotion_observation(
@@ -180,7 +185,8 @@ class LocomotionEnv(Env):
     @property
     def restart_info(self) -> tuple[str, ...]:
         """The info entries that restart from the first state when an episode ends."""
-        return self.RESTART_INFO + (self.SENSOR_RESTART_INFO if self._sensor_obs else ())
+        sensor = self.SENSOR_RESTART_INFO if self._sensor_obs else ()
+        return self.RESTART_INFO + sensor + (("yaw_error",) if self._config.yaw_error_tau_s else ())
 
     def actor_obs(self, obs):
         """The actor's part of an observation (obs itself unless it is a dictionary)."""
@@ -345,6 +351,8 @@ class LocomotionEnv(Env):
         if self._sensor_obs:
             info["last_encoders"] = None  # the first reading: motor_vel 0, history filled with it
             info["obs_history"] = None
+        if self._config.yaw_error_tau_s:
+            info["yaw_error"] = jnp.zeros(1)  # the leaky integral starts at 0 (sensors.sensor_step)
         obs, info = self._observe(data, info, None, (data.qpos, data.qvel), jnp.zeros(4, bool))
         return State(data, obs, jnp.zeros(()), jnp.zeros(()), metrics, info)
 

@@ -70,6 +70,7 @@ ENV_KEYS_ADDED = {
     "gait_scale.step_height_m": 1.0,
     "observation": "true_state",
     "obs_history": 1,
+    "yaw_error_tau_s": 0.0,
     "asymmetric_critic": False,
     "critic_scan_points": 0,
     "critic_scan_spacing_m": 0.05,
@@ -253,6 +254,10 @@ def env_config(
             # state (obs_spec.privileged_observation; brax PPO's value_obs_key)
             "observation": observation,
             "obs_history": 1,
+            # the "sensors" observation's yaw_error entry (sensors.yaw_error_step): a leaky
+            # integral of the gyro's yaw rate minus the commanded one, with this time constant [s];
+            # 0: no such entry. Needs command_tracking.
+            "yaw_error_tau_s": 0.0,
             "asymmetric_critic": asymmetric_critic,
             # the critic's ground scan (asymmetric_critic, locomotion): an n x n grid of ground
             # heights (n = critic_scan_points, 0: none), spacing apart, centred under the base and
@@ -383,6 +388,7 @@ ENV_RULES: dict[str, Rule] = {
     "noise.motor_pos": Rule("number", 0.0, 0.5, _RAD),
     "observation": Rule("name"),
     "obs_history": Rule("int", 1, 16, "ticks"),
+    "yaw_error_tau_s": Rule("number", 0.0, 60.0, _S),
     "asymmetric_critic": Rule("bool"),
     "critic_scan_points": Rule("int", 0, 31),
     "critic_scan_spacing_m": Rule("number", 0.0, 0.5, _M, lo_open=True),
@@ -488,6 +494,8 @@ def check_env_config(cfg) -> None:
         raise ValueError(f"env.observation is {cfg.observation!r}; choose from {list(OBSERVATIONS)}")
     if cfg.obs_history > 1 and cfg.observation != "sensors":
         raise ValueError("env.obs_history > 1 needs env.observation=sensors")
+    if cfg.yaw_error_tau_s and (cfg.observation != "sensors" or not cfg.command_tracking):
+        raise ValueError("env.yaw_error_tau_s > 0 needs env.observation=sensors and a command to track")
     if cfg.critic_scan_points and (not cfg.asymmetric_critic or cfg.task != "locomotion"):
         raise ValueError(
             "env.critic_scan_points > 0 needs env.asymmetric_critic=true and the locomotion task"

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from collections.abc import Mapping, Sequence
 
 from quadson_mjx.arrays import namespace
@@ -174,16 +175,25 @@ def lagged(name: str, lag: int) -> str:
 
 
 def sensor_observation(
-    legs: Sequence[str], motor_joints: Sequence[str], action_size: int, history: int = 1, command: bool = True
+    legs: Sequence[str],
+    motor_joints: Sequence[str],
+    action_size: int,
+    history: int = 1,
+    command: bool = True,
+    yaw_error: bool = False,
 ) -> Spec:
     """The actor's observation from the robot's own sensors only (ROBOT_SENSORS): the IMU's gravity
     direction in the body frame (no absolute yaw) and gyroscope, the motor encoders' angles and their
     velocity by difference over one control tick, the policy's last action, sin and cos of each leg's
     gait phase, and the command (command=False: a policy of one gait at its own speed, which observes
     none). history > 1 adds the IMU, encoder and action entries of the
-    history - 1 ticks before, newest first ("gyro@-1", ..., HISTORY_ENTRIES)."""
+    history - 1 ticks before, newest first ("gyro@-1", ..., HISTORY_ENTRIES). yaw_error adds, last,
+    a leaky integral of the gyro's yaw rate minus the commanded yaw rate (sensors.yaw_error_step):
+    how far the body has turned off the commanded turn over the last time constant."""
     if history < 1:
         raise ValueError(f"history {history}: need at least 1 tick")
+    if yaw_error and not command:
+        raise ValueError("yaw_error needs the command")
     actions = tuple(f"a{i}" for i in range(action_size))
     base = {
         "gravity": entry("gravity", ("x", "y", "z"), "1", "imu", "unit gravity direction, body frame"),
@@ -207,7 +217,27 @@ def sensor_observation(
     ]
     if command:
         entries.append(COMMAND)
+    if yaw_error:
+        entries.append(YAW_ERROR)
     return Spec(tuple(entries))
+
+
+YAW_ERROR = entry(
+    "yaw_error",
+    ("z",),
+    "rad",
+    "imu",
+    "leaky integral of gyro z - commanded yaw rate (time constant: env config yaw_error_tau_s)",
+)
+
+
+def yaw_error_step(previous, gyro_z, command_yaw_rate, ctrl_dt: float, tau_s: float):
+    """The yaw_error entry one control tick on [rad]: previous * exp(-ctrl_dt / tau_s) + ctrl_dt *
+    (gyro_z - command_yaw_rate); 0 at an episode's first tick (the deploy loop's: after a reset or a
+    resync), this step from the second on. The gyro's
+    reading includes its bias: b rad/s of bias settle at b * ctrl_dt / (1 - exp(-ctrl_dt / tau_s))
+    rad, about b * tau_s. numpy or JAX arrays alike (the environment and the deploy loop)."""
+    return math.exp(-ctrl_dt / tau_s) * previous + ctrl_dt * (gyro_z - command_yaw_rate)
 
 
 def getup_observation(motor_joints: Sequence[str]) -> Spec:

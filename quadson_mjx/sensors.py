@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from quadson_mjx import terrain
-from quadson_mjx.obs_spec import HISTORY_ENTRIES, lagged
+from quadson_mjx.obs_spec import HISTORY_ENTRIES, lagged, yaw_error_step
 from quadson_mjx.quat import quat_mul, quat_rotate_inverse, quat_to_rpy
 
 
@@ -146,14 +146,17 @@ def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -
     """One tick of the "sensors" observation: read_sensors on qpos (nq,), qvel (nv,), motor_pos
     (12,) (the state the sensors see), then sensor_observation_parts with info's buffers
     (last_encoders, obs_history; None on reset: the first reading is also the one before, so
-    motor_vel is 0 and the history holds it), last_action, command, the episode's sensor errors
-    and its noise key; phase (4,) [rad]. -> (entries, info with last_encoders and obs_history moved on)."""
+    motor_vel is 0 and the history holds it; with cfg.yaw_error_tau_s, yaw_error (1,): 0 on reset,
+    and it stays 0 at that first tick),
+    last_action, command, the episode's sensor errors and its noise key; phase (4,) [rad]. ->
+    (entries, info with last_encoders, obs_history and yaw_error moved on)."""
     readings = read_sensors(cfg, qpos, qvel, motor_pos, info, jax.random.fold_in(info["rng"], 3))
     info = dict(info)
-    if info["last_encoders"] is None:
+    first = info["last_encoders"] is None
+    if first:
         info["last_encoders"] = readings["motor_pos"]
-        first = {**readings, "motor_vel": jnp.zeros_like(motor_pos), "last_action": info["last_action"]}
-        info["obs_history"] = jnp.tile(history_block(first)[None], (cfg.obs_history - 1, 1))
+        tick0 = {**readings, "motor_vel": jnp.zeros_like(motor_pos), "last_action": info["last_action"]}
+        info["obs_history"] = jnp.tile(history_block(tick0)[None], (cfg.obs_history - 1, 1))
     parts, info["obs_history"] = sensor_observation_parts(
         readings,
         info["last_encoders"],
@@ -164,6 +167,12 @@ def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -
         info["command"],
     )
     info["last_encoders"] = readings["motor_pos"]
+    if cfg.yaw_error_tau_s and not first:  # 0 at the first tick, as the deploy loop's
+        info["yaw_error"] = yaw_error_step(
+            info["yaw_error"], readings["gyro"][2:], info["command"][2:], ctrl_dt, cfg.yaw_error_tau_s
+        )
+    if cfg.yaw_error_tau_s:
+        parts["yaw_error"] = info["yaw_error"]
     if not cfg.command_tracking:  # a gait policy at the gait's own speed observes no command
         del parts["command"]
     return parts, info

@@ -110,6 +110,9 @@ def test_network_sizes_take_any_depth():
         ("noise.rpy=-0.1", "env.noise.rpy"),
         ("gait_scale.cycle_s=0", "env.gait_scale.cycle_s"),
         ("gait_scale.step_length_m=-1", "env.gait_scale.step_length_m"),
+        ("yaw_error_tau_s=-1", "env.yaw_error_tau_s"),
+        # the yaw error integrates the commanded yaw rate's error from the gyro: sensors and a command
+        ("yaw_error_tau_s=1", "env.yaw_error_tau_s > 0 needs env.observation=sensors"),
     ],
 )
 def test_env_config_values_out_of_range_are_errors_naming_the_key_regression(override, key):

@@ -150,6 +150,7 @@ def sensor_env():
     cfg.unlock()
     cfg.observation = "sensors"
     cfg.obs_history = 3
+    cfg.yaw_error_tau_s = 0.5
     cfg.lock()
     return LocomotionEnv(cfg)
 
@@ -158,7 +159,8 @@ def test_env_and_deploy_loop_build_the_same_sensor_observation_from_the_same_str
     """The jitted env steps with random actions; the loop is fed what the env's sensors read at each
     tick (IMU quaternion and gyro, the encoders quantised as the env quantises them) and returns the
     same actions: its observation (gravity, gyro, encoders, their velocity, last action, two ticks of
-    history, phases, command) equals the env's to float32 precision, from the first tick on."""
+    history, phases, command, the yaw error) equals the env's to float32 precision, from the first
+    tick on. The yaw error also equals its recurrence worked by hand from the env's gyro entries."""
     env = sensor_env
     loop = deploy.DeployLoop(_Policy(env))
     assert loop.config.obs_spec == env.obs_spec and not loop.needs_lin_vel
@@ -171,6 +173,8 @@ def test_env_and_deploy_loop_build_the_same_sensor_observation_from_the_same_str
     res = np.float32(env.config.sensor.encoder_resolution_rad)
     command = np.asarray(state.info["command"], np.float64)
     worst = 0.0
+    where = env.obs_spec.slices()
+    decay, dt, by_hand = np.exp(-env.ctrl_dt / 0.5), env.ctrl_dt, 0.0
     for k in range(20):
         qpos, qvel = np.asarray(state.pipeline_state.qpos), np.asarray(state.pipeline_state.qvel)
         encoders = np.round(qpos[motor_q] / res) * res  # float32, as sensors.quantize
@@ -182,6 +186,25 @@ def test_env_and_deploy_loop_build_the_same_sensor_observation_from_the_same_str
         worst = max(worst, float(np.max(np.abs(out.obs - want))))
         # measured 6.2e-6: float32 env (phases, quaternion rotation, velocity quotient), float64 loop
         np.testing.assert_allclose(out.obs, want, rtol=0, atol=2e-5, err_msg=f"tick {k}")
+        if k:  # 0 at the first tick, then e <- e exp(-dt / tau) + dt (gyro z - commanded yaw rate)
+            by_hand = decay * by_hand + dt * (float(want[where["gyro"]][2]) - command[2])
+        assert float(want[where["yaw_error"]][0]) == pytest.approx(by_hand, abs=1e-6)
         state = step(state, jnp.asarray(actions[k]))
         assert not bool(state.done)
     print(f"sensor observation, env vs loop over 20 ticks: max abs difference {worst:.2e}")
+    assert abs(by_hand) > 1e-3  # the random actions turned the body: the entry was exercised
+
+
+def test_yaw_error_step_by_hand_and_its_bias_level():
+    """tau 1 s, ctrl_dt 0.02 s: 0.1 rad, gyro 0.5, command 0.2 rad/s -> 0.1 exp(-0.02) + 0.02 x 0.3
+    = 0.104019867 rad; a constant 0.03 rad/s bias settles at 0.03 x 0.02 / (1 - exp(-0.02)) =
+    0.0303 rad (about bias x tau)."""
+    assert obs_spec.yaw_error_step(0.1, 0.5, 0.2, 0.02, 1.0) == pytest.approx(0.104019867, abs=1e-9)
+    e = np.zeros(1)
+    for _ in range(2000):
+        e = obs_spec.yaw_error_step(e, np.array([0.33]), np.array([0.3]), 0.02, 1.0)
+    assert float(e[0]) == pytest.approx(0.0303, abs=1e-4)
+    spec = obs_spec.sensor_observation(LEGS, MOTORS, 12, 1, True, True)
+    assert spec.names[-1] == "yaw_error.z" and spec.entries[-1].sensor == "imu" and spec.robot_measurable()
+    with pytest.raises(ValueError, match="needs the command"):
+        obs_spec.sensor_observation(LEGS, MOTORS, 12, 1, False, True)
