@@ -185,6 +185,10 @@ def test_regression_checkpoint_without_run_and_overrides_with_run(cli, capsys, t
         cli, capsys, ["--run", str(run), "--env.terrain=rough", "--out", str(tmp_path / "o.mcap")]
     )
     assert "not allowed with --run" in err
+    # Regression: --controller gait --run R rolled out R's policy, not the gait, and said nothing
+    for argv in (["--controller", "gait", "--run", str(run)], ["--controller", "pid", "--suite"]):
+        err = _usage_error(cli, capsys, [*argv, "--out", str(tmp_path / "o.mcap")])
+        assert "--controller" in err and ("give one" in err or "leave it out" in err), argv
 
 
 def _fake_record(calls, fail=None):

@@ -78,8 +78,8 @@ def parse(argv):
     p = errors.ArgumentParser(
         prog="quadson-rollout", description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V"
     )
-    p.add_argument("--controller", default="gait", choices=R.CONTROLLERS)
-    p.add_argument("--run", default=None, help="run directory of a trained policy (overrides --controller)")
+    p.add_argument("--controller", default=None, choices=R.CONTROLLERS, help="default: gait (not with --run)")
+    p.add_argument("--run", default=None, help="run directory of a trained policy (instead of --controller)")
     p.add_argument("--checkpoint", default=None, help="checkpoint file of --run (default: newest)")
     p.add_argument("--terrain", default=None, choices=list(ENV_TERRAINS), help="default: flat, or the run's")
     p.add_argument("--gait", default=None, help="a gait of the robot (default: the robot's, Quadson's trot)")
@@ -120,6 +120,14 @@ def check_args(args, overrides=()) -> None:
     """Raises UsageError for values the rollout cannot run with, before anything is compiled or
     written: numbers, the env configs the named controllers will run (gait, --env.KEY=V), the run
     directory, and every output path (missing or read-only folder, a folder, exists)."""
+    if args.controller is not None and args.run is not None:
+        raise UsageError(
+            f"--controller {args.controller} and --run {args.run}: give one (--run rolls out its policy; "
+            "--suite --run runs every controller and the policy)"
+        )
+    if args.controller is not None and args.suite:
+        raise UsageError(f"--controller {args.controller}: --suite runs every controller; leave it out")
+    args.controller = args.controller or "gait"
     if args.envs < 1:
         raise UsageError(f"--envs {args.envs}: need at least 1 environment (e.g. --envs 1)")
     if not args.seconds > 0:
