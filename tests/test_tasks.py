@@ -84,6 +84,8 @@ COMMITTED_RUNS = {
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
     # the robust recipe with 3 ticks of sensor history
     "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
+    # the main job with its own PPO settings (training.presets.MAIN_JOB)
+    "results/policy_h100_main": ("QuadsonFlat", []),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # trained before the toppled starts
@@ -298,6 +300,49 @@ def test_train_task_and_flag_spellings_give_one_config(name, monkeypatch, tmp_pa
             run(["--gait-action", *argv, "--run-dir", str(tmp_path / "d")])
         )
         assert with_action.gait_action is True
+
+
+def test_main_job_alone_gets_the_main_job_ppo_settings(monkeypatch, tmp_path):
+    """On the gpu preset, the main command (no flag, or --task QuadsonFlat) trains with MAIN_JOB's
+    2048 environments and 24M steps; every other task, --gait-action included, with the preset's;
+    an override still wins."""
+    from quadson_mjx.training.presets import MAIN_JOB
+
+    class Stop(Exception):
+        pass
+
+    seen = []
+
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None):
+        seen.append(ppo_cfg)
+        raise Stop
+
+    monkeypatch.setattr(training, "train", fake_train)
+    gpu = training.ppo_config("gpu")
+    cases = [
+        ([], True),
+        (["--task", "QuadsonFlat"], True),
+        (["--task", "QuadsonJoystickRough"], False),
+        (["--gait-action"], False),
+        (["--gait", "trot"], False),
+        (["--robot", "caramel"], False),
+        (["--ppo.num_timesteps=30000000"], True),
+    ]
+    for i, (argv, main) in enumerate(cases):
+        sigterm = signal.getsignal(signal.SIGTERM)
+        try:
+            with pytest.raises(Stop):
+                train_cli.main(
+                    [*argv, "--preset", "gpu", "--no-compile-cache", "--run-dir", str(tmp_path / str(i))]
+                )
+        finally:
+            signal.signal(signal.SIGTERM, sigterm)
+        cfg = seen.pop()
+        want = {k: (v if main else gpu[k]) for k, v in MAIN_JOB.items()}
+        if argv[:1] == ["--ppo.num_timesteps=30000000"]:
+            want["num_timesteps"] = 30_000_000
+        assert {k: cfg[k] for k in MAIN_JOB} == want, argv
+    assert training.ppo_config("cpu", True).to_dict() == training.ppo_config("cpu").to_dict()
 
 
 def test_train_defaults_are_quadson_flat(monkeypatch, tmp_path):

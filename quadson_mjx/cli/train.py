@@ -47,6 +47,12 @@ from quadson_mjx.training.guards import check_backend
 TASK_FLAG_DEFAULTS = {"robot": "quadson", "env_preset": "seed", "terrain": "flat", "gait": None}
 
 
+def is_main_job(env_cfg) -> bool:
+    """Whether an env config (before overrides) is the main job's: no task and no flag, or its task
+    QuadsonFlat. The main job has PPO settings of its own on a GPU (training.presets.MAIN_JOB)."""
+    return env_cfg.to_dict() == tasks.config_from_flags().to_dict()
+
+
 def parse(argv):
     p = ArgumentParser(description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V --ppo.KEY=V")
     p.add_argument(
@@ -276,8 +282,9 @@ def _run(args, overrides, stop) -> int:
                 flags = {k: getattr(args, k) for k in TASK_FLAG_DEFAULTS}
                 flags = {k: d if flags[k] is None else flags[k] for k, d in TASK_FLAG_DEFAULTS.items()}
                 env_cfg = tasks.config_from_flags(**flags, gait_action=args.gait_action)
+            main = is_main_job(env_cfg)
             env_cfg, ppo_cfg, run_dir = new_run_configs(
-                env_cfg, training.ppo_config(preset), overrides, args.run_dir, primary
+                env_cfg, training.ppo_config(preset, main), overrides, args.run_dir, primary
             )
         except (ValueError, FileExistsError) as e:
             raise UsageError(str(e)) from None

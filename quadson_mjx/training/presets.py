@@ -10,10 +10,20 @@ import ml_collections
 
 from quadson_mjx.config import LAYER_SIZE_KEYS, Rule
 
+# The main job's settings on a GPU (`python train/ppo_mjx.py` with no task and no flag, or
+# --task QuadsonFlat): 2048 environments with the preset's 8 minibatches, so 4x its gradient steps
+# per sample, reach 0.45 m/s in a quarter of the preset's environment steps (8.0M against 32.8M,
+# benchmarks/results/ppo_settings_h200_b) and 0.48-0.49 m/s by 24M, where the preset needs 80M.
+# Evaluations at 0, 8, 16 and 24M steps. First runs on one NVIDIA H100 (empty compilation cache):
+# 134.7, 147.3 and 146.9 s against the preset's 182.7 s in the same session
+# (benchmarks/results/time_to_policy_h100_main.json).
+MAIN_JOB = {"num_envs": 2048, "batch_size": 256, "num_timesteps": 24_000_000, "num_evals": 4}
 
-def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
+
+def ppo_config(preset: str = "gpu", main_job: bool = False) -> ml_collections.ConfigDict:
     """PPO hyperparameters. Presets: "gpu" (the real job on one GPU), "cpu" (a small run that
-    finishes in minutes on a CPU and still learns), "test" (a few iterations, for tests)."""
+    finishes in minutes on a CPU and still learns), "test" (a few iterations, for tests).
+    main_job: with "gpu", the main job's settings (MAIN_JOB) instead of the preset's."""
     base = {
         "num_timesteps": 80_000_000,
         # An evaluation (and checkpoint) every 16M steps: each one runs 128 episodes of 938 sequential
@@ -93,7 +103,8 @@ def ppo_config(preset: str = "gpu") -> ml_collections.ConfigDict:
     }
     if preset not in presets:
         raise ValueError(f"unknown ppo preset {preset!r}; choose from {list(PRESETS)}")
-    cfg = ml_collections.ConfigDict({**base, **presets[preset], "preset": preset})
+    main = MAIN_JOB if main_job and preset == "gpu" else {}
+    cfg = ml_collections.ConfigDict({**base, **presets[preset], **main, "preset": preset})
     cfg.lock()
     return cfg
 
