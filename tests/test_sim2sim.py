@@ -388,3 +388,21 @@ def test_regression_run_line_of_a_run_that_fell_in_its_first_second():
            "vx_mean": None, "pattern_1step": None, "invalid_ik_steps": 3, "wall_s": 0.7}  # fmt: skip
     line = run_line(row)
     assert "FELL at 0.84 s" in line and "rms vx - vy - yaw -" in line and "pattern -" in line
+
+
+def test_yaw_error_policy_turns_closed_loop_through_its_deploy_loop(robot, tmp_path):
+    """The committed sensor-only policy with the yaw error in its observation, exported to ONNX, in
+    MuJoCo C through the deploy loop: the file's spec ends with yaw_error and carries its time
+    constant; turning at 0.5 rad/s for 3 s it does not fall, and the loop's yaw error is the leaky
+    integral of what its gyro read minus the command (|e| < 0.1 rad: the turn is followed)."""
+    from quadson_mjx import export
+
+    path = export.export_run("results/policy_h200_sensors_yaw", tmp_path / "yaw.onnx")
+    adapter = S.LoopAdapter(str(path), "true")
+    assert adapter.velocity_source == "none" and adapter.loop.config.yaw_error_tau_s == 0.5
+    assert adapter.loop.config.obs_spec.names[-1] == "yaw_error.z"
+    plant = S.make_plant(robot, adapter.env_config, "flat", 0.02, seed=0, randomize=False, pushes=False)
+    row = S.run_episode(adapter, plant, ((0.0, (0.0, 0.0, 0.5)),), 3.0, seed=0)
+    assert row["steps"] == 150 and not row["fell"] and row["invalid_ik_steps"] == 0
+    assert row["yaw_rate_rms"] < 0.2  # measured 0.10; the gait alone is 0.7-0.8 rad/s off (docs/results.md)
+    assert 0.0 < abs(float(adapter.loop.observer.yaw_error[0])) < 0.1  # measured 0.013 rad

@@ -86,6 +86,11 @@ COMMITTED_RUNS = {
     "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
     # the main job with its own PPO settings (training.presets.MAIN_JOB)
     "results/policy_h100_main": ("QuadsonFlat", []),
+    # and the yaw error in the actor's observation, yaw-rate tracking weighed twice
+    "results/policy_h200_sensors_yaw": (
+        "QuadsonJoystickRough",
+        ["obs_history=3", "yaw_error_tau_s=0.5", "reward.weights.ang_vel_tracking_exp=1.0"],
+    ),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # trained before the toppled starts
