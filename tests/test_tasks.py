@@ -98,6 +98,8 @@ COMMITTED_RUNS = {
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
     # trained on one side
     "results/getup_mirror_h100": ("QuadsonGetupFlat", ["getup.mirror_to=left"]),
+    # and 40M steps more (--init-from)
+    "results/getup_mirror_ft_h200": ("QuadsonGetupFlat", ["getup.mirror_to=left"]),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     # fine-tuned (--init-from) from before_finetune/pace under a wider randomization
