@@ -254,7 +254,7 @@ def env_config(
             # state (obs_spec.privileged_observation; brax PPO's value_obs_key)
             "observation": observation,
             "obs_history": 1,
-            # the "sensors" observation's yaw_error entry (sensors.yaw_error_step): a leaky
+            # the "sensors" observation's yaw_error entry (obs_spec.yaw_error_step): a leaky
             # integral of the gyro's yaw rate minus the commanded one, with this time constant [s];
             # 0: no such entry. Needs command_tracking.
             "yaw_error_tau_s": 0.0,

@@ -188,7 +188,7 @@ def sensor_observation(
     gait phase, and the command (command=False: a policy of one gait at its own speed, which observes
     none). history > 1 adds the IMU, encoder and action entries of the
     history - 1 ticks before, newest first ("gyro@-1", ..., HISTORY_ENTRIES). yaw_error adds, last,
-    a leaky integral of the gyro's yaw rate minus the commanded yaw rate (sensors.yaw_error_step):
+    a leaky integral of the gyro's yaw rate minus the commanded yaw rate (yaw_error_step):
     how far the body has turned off the commanded turn over the last time constant."""
     if history < 1:
         raise ValueError(f"history {history}: need at least 1 tick")
