@@ -147,9 +147,9 @@ def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -
     (12,) (the state the sensors see), then sensor_observation_parts with info's buffers
     (last_encoders, obs_history; None on reset: the first reading is also the one before, so
     motor_vel is 0 and the history holds it; with cfg.yaw_error_tau_s, yaw_error (1,): 0 on reset,
-    and it stays 0 at that first tick),
-    last_action, command, the episode's sensor errors and its noise key; phase (4,) [rad]. ->
-    (entries, info with last_encoders, obs_history and yaw_error moved on)."""
+    and it stays 0 at that first tick), last_action, command, the episode's sensor errors and its
+    noise key; phase (4,) [rad]. -> (entries, info with last_encoders, obs_history and yaw_error
+    moved on)."""
     readings = read_sensors(cfg, qpos, qvel, motor_pos, info, jax.random.fold_in(info["rng"], 3))
     info = dict(info)
     first = info["last_encoders"] is None
@@ -167,11 +167,11 @@ def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -
         info["command"],
     )
     info["last_encoders"] = readings["motor_pos"]
-    if cfg.yaw_error_tau_s and not first:  # 0 at the first tick, as the deploy loop's
-        info["yaw_error"] = yaw_error_step(
-            info["yaw_error"], readings["gyro"][2:], info["command"][2:], ctrl_dt, cfg.yaw_error_tau_s
-        )
     if cfg.yaw_error_tau_s:
+        if not first:  # 0 at the first tick, as the deploy loop's
+            info["yaw_error"] = yaw_error_step(
+                info["yaw_error"], readings["gyro"][2:], info["command"][2:], ctrl_dt, cfg.yaw_error_tau_s
+            )
         parts["yaw_error"] = info["yaw_error"]
     if not cfg.command_tracking:  # a gait policy at the gait's own speed observes no command
         del parts["command"]
