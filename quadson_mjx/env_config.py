@@ -410,8 +410,9 @@ ENV_RULES: dict[str, Rule] = {
     "push.speed_mps": Rule("pair", 0.0, 5.0, "m/s"),
     "tiles.types": Rule("name"),  # and each a known tile type, once
     "tiles.levels": Rule("int", 1, 100, "rows"),
-    "tiles.tile_m": Rule("number", 0.5, 20.0, _M),  # and a whole number of 2 cm cells
-    "tiles.border_m": Rule("number", 0.0, 20.0, _M),  # and a whole number of 2 cm cells
+    "tiles.tile_m": Rule("number", 0.5, 20.0, _M),  # and a whole number of cells
+    "tiles.border_m": Rule("number", 0.0, 20.0, _M),  # and a whole number of cells
+    "tiles.cell_m": Rule("number", 0.005, 0.2, _M),
     "tiles.seed": Rule("int", 0, 2**31 - 1),
     "tiles.max_init_level": Rule("int", 0, 99, "(a level)"),  # and < levels
     "tiles.spawn_margin_m": Rule("number", 0.0, 10.0, _M),  # and < tile_m / 2

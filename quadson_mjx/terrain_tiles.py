@@ -228,6 +228,9 @@ TILES = {
     "levels": 10,
     "tile_m": 2.0,
     "border_m": 1.0,
+    # the height field's grid: a step's riser is one cell wide, and MJX tests each foot sphere
+    # against every triangle under its bounding box (18 on 2 cm cells, 8 on 4 cm)
+    "cell_m": 0.02,
     "seed": 0,
     "max_init_level": 4,
     "spawn_margin_m": 0.25,
@@ -243,7 +246,9 @@ def tile_spec(cfg) -> TerrainSpec:
     t = cfg.tiles
     types = tuple(x.strip() for x in t.types.split(","))
     try:
-        spec = TerrainSpec(types=types, levels=t.levels, tile_m=t.tile_m, seed=t.seed, border_m=t.border_m)
+        spec = TerrainSpec(
+            types=types, levels=t.levels, tile_m=t.tile_m, cell_m=t.cell_m, seed=t.seed, border_m=t.border_m
+        )
     except ValueError as e:
         raise ValueError(f"env.tiles: {e}") from None
     if t.max_init_level >= t.levels:

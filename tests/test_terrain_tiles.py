@@ -14,6 +14,8 @@ from quadson_mjx import terrain_tiles as T
 
 # small enough for the CPU: 1 m tiles, 3 levels, every type (401 x 151 samples)
 SPEC = T.TerrainSpec(tile_m=1.0, levels=3, seed=5)
+# the same on 4 cm cells (env.tiles.cell_m), 201 x 76 samples
+COARSE = T.TerrainSpec(tile_m=1.0, levels=3, seed=5, cell_m=0.04)
 
 
 @pytest.fixture(scope="module")
@@ -84,8 +86,12 @@ def _model(heights, spec):
     return m
 
 
-def test_height_query_equals_mujoco_ray_casts_on_every_tile(grid):
-    m = _model(grid, SPEC)
+@pytest.mark.parametrize("spec", [SPEC, COARSE], ids=["2cm", "4cm"])
+def test_height_query_equals_mujoco_ray_casts_on_every_tile(spec, grid):
+    if spec is not SPEC:
+        grid = T.tile_grid(spec)
+        assert grid.shape == (3 * 25 + 1, 8 * 25 + 1)
+    m = _model(grid, spec)
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     field = terrain.heightfield(m)
@@ -93,10 +99,10 @@ def test_height_query_equals_mujoco_ray_casts_on_every_tile(grid):
     query = jax.jit(jax.vmap(lambda xy: terrain.ground_height(field, xy)))
     rng = np.random.default_rng(0)
     geomid = np.zeros(1, np.int32)
-    for t, kind in enumerate(SPEC.types):
-        for level in range(SPEC.levels):
-            c = T.tile_center(SPEC, t, level)
-            xy = c + rng.uniform(-0.5, 0.5, (64, 2)) * SPEC.tile_m
+    for t, kind in enumerate(spec.types):
+        for level in range(spec.levels):
+            c = T.tile_center(spec, t, level)
+            xy = c + rng.uniform(-0.5, 0.5, (64, 2)) * spec.tile_m
             got = np.asarray(query(jnp.asarray(xy, jnp.float32)))
             top = grid.max() + 1.0
             want = [

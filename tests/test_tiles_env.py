@@ -74,6 +74,7 @@ def test_config_errors_name_the_key():
         ({"spawn_margin_m": 0.5}, "env.tiles.spawn_margin_m"),
         ({"curriculum_down": 0.9}, "env.tiles.curriculum_down"),
         ({"border_m": 0.015}, "border_m"),
+        ({"cell_m": 0.03}, "cell_m"),  # 1 m is no whole number of 3 cm cells
     ):
         with pytest.raises(ValueError, match=words.replace(".", r"\.")):
             check_env_config(_config(**tiles))
