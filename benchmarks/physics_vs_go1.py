@@ -91,8 +91,13 @@ def run_meta(args) -> dict:
 
 
 def load_go1(scene: str) -> mujoco.MjModel:
-    """Playground's feet-only Go1 scene without its visual meshes (collision-free, massless)."""
+    """Playground's feet-only Go1 scene without its visual meshes (collision-free, massless). Its
+    height-field and texture files are found beside the scene (Playground passes them as assets;
+    the scene's meshdir points into a Menagerie checkout)."""
     spec = mujoco.MjSpec.from_file(scene)
+    for asset in (*spec.hfields, *spec.textures):
+        if asset.file:
+            asset.file = str((Path(scene).parent / asset.file).resolve())
     for g in list(spec.geoms):
         if g.type == mujoco.mjtGeom.mjGEOM_MESH:
             spec.delete(g)

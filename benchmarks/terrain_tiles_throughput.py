@@ -14,7 +14,15 @@ The tiled ground is compiled once: its rows differ only in where the robots star
 mixed, as training draws them, then every robot on one type), each at levels drawn uniformly over
 all rows (curriculum off, so the mix stays as drawn). "flat" and "stones" are the plane and the
 stone-field scenes. One jitted lax.scan over --steps control steps per row, best of --repeats. The
-Go1 row (--go1-scene, see physics_vs_go1.py) is bare physics, the anchor of the other benchmarks.
+Go1 row (--go1-scene, see physics_vs_go1.py) is bare physics, the anchor of the other benchmarks;
+Playground's feet-only Go1 on its rough height field (the scene beside it) is the field's own
+measure of what a height field costs.
+
+--breakdown adds what the tiled ground's cost is made of, in the same run: bare physics (no
+environment, noisy position targets around the home pose, every world at the field's centre) on the
+plane, the stone field and the tiles on 2 cm and 4 cm cells; the environment on 4 cm cells
+(`env.tiles.cell_m=0.04`); and on 2 cm cells with the respawn replaced by a restart at each robot's
+first state (as on the stone field), which leaves out the per-step fresh start on the tile.
 """
 
 from __future__ import annotations
@@ -34,22 +42,45 @@ from physics_vs_go1 import load_go1, physics_only, run_meta
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.randomize import randomization_fn
 from quadson_mjx.tasks import config_from_flags
-from quadson_mjx.wrappers import wrap_for_training
+from quadson_mjx.wrappers import ResamplingAutoReset, wrap_for_training
 
 ACTION_RANGE = 0.2
 
 
-def wrapped(terrain: str, n_envs: int):
+class RestartAtFirstState(ResamplingAutoReset):
+    """The auto-reset with the tiled ground's respawn left out: a robot whose episode ends restarts
+    at its first state (as on the stone field), so the difference to the respawn's row is the
+    per-step fresh start (spawn place, lift, kinematics, observation) and the curriculum."""
+
+    def _respawn_on_tiles(self, state, done, where_done):
+        pipeline_state = jax.tree.map(where_done, state.info["first_pipeline_state"], state.pipeline_state)
+        obs = jax.tree.map(where_done, state.info["first_obs"], state.obs)
+        return state.replace(pipeline_state=pipeline_state, obs=obs)
+
+
+def wrapped(terrain: str, n_envs: int, cell_m: float | None = None, respawn: bool = True):
     cfg = config_from_flags(env_preset="robust", terrain=terrain).unlock()
     if terrain == "tiles":
         cfg.tiles.curriculum = False  # keep each row's mix of levels as drawn
+        if cell_m is not None:
+            cfg.tiles.cell_m = cell_m
     cfg.lock()
     env = LocomotionEnv(cfg)
     rand = functools.partial(
         randomization_fn(env.config.randomization, env.base_body),
         rng=jax.random.split(jax.random.PRNGKey(1), n_envs),
     )
-    return env, wrap_for_training(env, env.episode_length, randomization_fn=rand)
+    w = wrap_for_training(env, env.episode_length, randomization_fn=rand)
+    if not respawn:
+        w = RestartAtFirstState(w.env, env.episode_length)
+    return env, w
+
+
+def bare_physics(env, n_envs: int, steps: int, repeats: int) -> dict:
+    """physics_only on the env's model (its ground) from the home keyframe at the world's origin."""
+    m = env.mj_model
+    home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
+    return physics_only(m, m.key_qpos[home], m.key_ctrl[home], n_envs, steps, repeats)
 
 
 def rollout_fn(env, w, n_envs: int, steps: int):
@@ -93,6 +124,7 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=100)
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--go1-scene", default=None)
+    p.add_argument("--breakdown", action="store_true", help="add the rows that split the tiles' cost")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     meta = run_meta(args)
@@ -111,6 +143,9 @@ def main(argv=None) -> int:
             key = mujoco.mj_name2id(go1, mujoco.mjtObj.mjOBJ_KEY, "home")
             record({"robot": "go1_feetonly", "ground": "flat (physics only)", "envs": n,
                     **physics_only(go1, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats)})  # fmt: skip
+            rough = load_go1(str(Path(args.go1_scene).with_name("scene_mjx_feetonly_rough_terrain.xml")))
+            record({"robot": "go1_feetonly", "ground": "rough height field (physics only)", "envs": n,
+                    **physics_only(rough, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats)})  # fmt: skip
         for terrain, ground in (("flat", "flat"), ("rough", "stones field")):
             env, w = wrapped(terrain, n)
             state = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(0), n))
@@ -131,16 +166,44 @@ def main(argv=None) -> int:
             state = reset_on(keys, types, levels)
             record({"robot": "quadson", "ground": ground, "envs": n,
                     **timed_rollout(run, state, n, args.steps, args.repeats)})  # fmt: skip
+        if args.breakdown:
+            for name, kw in (
+                ("tiles: all types, 4 cm cells", {"cell_m": 0.04}),
+                ("tiles: all types, no respawn", {"respawn": False}),
+            ):
+                env, w = wrapped("tiles", n, **kw)
+                state = jax.jit(w.reset_on_tiles)(keys, mixed, levels)
+                record({"robot": "quadson", "ground": name, "envs": n,
+                        **timed_rollout(rollout_fn(env, w, n, args.steps), state, n, args.steps, args.repeats)})  # fmt: skip
+            for name, terrain, cell in (
+                ("plane", "flat", None),
+                ("stone field (4 cm cells)", "rough", None),
+                ("tiles (2 cm cells)", "tiles", None),
+                ("tiles (4 cm cells)", "tiles", 0.04),
+            ):
+                env, _ = wrapped(terrain, n, cell_m=cell)
+                record({"robot": "quadson", "ground": f"{name} (physics only)", "envs": n,
+                        **bare_physics(env, n, args.steps, args.repeats)})  # fmt: skip
     flat = {r["envs"]: r["env_steps_per_s"] for r in rows if r["ground"] == "flat"}
-    go1 = {r["envs"]: r["physics_steps_per_s"] for r in rows if r["robot"] == "go1_feetonly"}
+    go1 = {r["envs"]: r["physics_steps_per_s"] for r in rows if r["ground"] == "flat (physics only)"}
+    plane = {r["envs"]: r["physics_steps_per_s"] for r in rows if r["ground"] == "plane (physics only)"}
     print("\n| ground | envs | env steps/s | x flat | x Go1 physics | falls per 1000 steps |")
     print("|---|---:|---:|---:|---:|---:|")
     for r in rows:
-        if r["robot"] != "quadson":
+        if "env_steps_per_s" not in r:
             continue
         sps, n = r["env_steps_per_s"], r["envs"]
         vs_go1 = f"{sps / go1[n]:.2f}" if n in go1 else "-"
         print(f"| {r['ground']} | {n} | {sps:,.0f} | {sps / flat[n]:.2f} | {vs_go1} | {1000 * r['falls_per_env_step']:.1f} |")  # fmt: skip
+    physics = [r for r in rows if "physics_steps_per_s" in r]
+    if physics:
+        print("\n| bare physics | envs | control steps/s | x Go1 flat | x Quadson plane |")
+        print("|---|---|---:|---:|---:|")
+        for r in physics:
+            sps, n = r["physics_steps_per_s"], r["envs"]
+            vs_go1 = f"{sps / go1[n]:.2f}" if n in go1 else "-"
+            vs_plane = f"{sps / plane[n]:.2f}" if n in plane else "-"
+            print(f"| {r['robot']}: {r['ground']} | {n} | {sps:,.0f} | {vs_go1} | {vs_plane} |")
     return 0
 
 
