@@ -93,6 +93,12 @@ COMMITTED_RUNS = {
     ),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
+    # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
+    "results/tiles_s015_h200": ("QuadsonJoystickTiles", ["reward.tracking_sigma=0.15"]),
+    "results/tiles_pitch_h100": (
+        "QuadsonJoystickTiles",
+        ["reward.tracking_sigma=0.15", "reward.orientation_coeffs=(40.0, 5.0, 0.0)"],
+    ),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
