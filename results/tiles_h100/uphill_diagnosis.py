@@ -12,8 +12,10 @@ ground differs, recording per tile:
 * the base's pitch (mean [deg], positive nose down).
 
     python results/tiles_h100/uphill_diagnosis.py > results/tiles_h100/uphill_diagnosis.log
+    python results/tiles_h100/uphill_diagnosis.py results/tiles_pitch_h100 > results/tiles_pitch_h100/uphill_diagnosis.log
 """
 
+import sys
 from pathlib import Path
 
 import jax
@@ -39,7 +41,8 @@ TILES = [  # (type, level)
 PER_TILE, SECONDS, COMMAND, SEED = 32, 3.0, (0.3, 0.0, 0.0), 0
 SATURATED = 0.98
 
-policy, env_cfg, _, _ = training.load_policy(Path("results/tiles_h100"))
+RUN = sys.argv[1] if len(sys.argv) > 1 else "results/tiles_h100"
+policy, env_cfg, _, _ = training.load_policy(Path(RUN))
 cfg = apply_overrides(tiles_env_config(env_cfg), ["randomize=false", "pushes=false"], prefix="env.")
 env = LocomotionEnv(cfg)
 spec = env.tiles
@@ -71,7 +74,7 @@ fell, progress, trace = out["fell"], out["progress"], out["record"]
 late = (np.arange(n_steps)[:, None] * env.ctrl_dt >= SETTLE_S) & trace["alive"]  # (T, n)
 commanded = speed * SECONDS
 print(
-    f"results/tiles_h100 on the nominal model without pushes, {PER_TILE} robots per tile, vx "
+    f"{RUN} on the nominal model without pushes, {PER_TILE} robots per tile, vx "
     f"{COMMAND[0]} m/s for {SECONDS} s; statistics over t >= {SETTLE_S} s"
 )
 print(
