@@ -29,16 +29,18 @@ SETTLE_S = 1.0  # the first second of a trial is left out of the RMS
 CENTRE_M = 0.02  # robots start this close to their tile's centre
 
 
-def tiles_env_config(env_cfg):
+def tiles_env_config(env_cfg, nominal: bool = False):
     """The run's env config on the tiled ground for the evaluation: its own `tiles` keys when it
     trained there (else the defaults), starts at the tile centres, the curriculum off, one command
-    per trial (no resampling)."""
+    per trial (no resampling). nominal: no randomization (model and sensor errors) and no pushes,
+    so that only the ground differs from flat ground."""
     cfg = with_added_keys(env_cfg)
     over = [
         "terrain=tiles",
         f"tiles.spawn_margin_m={cfg.tiles.tile_m / 2 - CENTRE_M}",
         "tiles.curriculum=false",
         "command_resample_s=(0.0, 0.0)",
+        *(["randomize=false", "pushes=false"] if nominal else []),
     ]
     return apply_overrides(cfg, over, prefix="env.")
 
@@ -52,15 +54,17 @@ def evaluate_tiles(
     command=(0.3, 0.0, 0.0),
     seed: int = 0,
     types=None,
+    nominal: bool = False,
 ) -> list[dict]:
     """policy(obs, key) -> (action, extras) (training.load_policy) of a run whose env config is
     env_cfg, on every tile (type, level) of `types` (default all) x `levels`, envs_per_tile robots
     each, for `seconds`, holding `command` (vx [m/s], vy [m/s], yaw rate [rad/s]) -> one row per
     tile: robots, falls, success share, mean share of the commanded distance covered, RMS vx, vy,
-    yaw rate, and the tile's slope [deg] or step [m] or bump height [m] at that level."""
+    yaw rate, and the tile's slope [deg] or step [m] or bump height [m] at that level. nominal: see
+    tiles_env_config (default: the run's randomization and pushes)."""
     if command[1] != 0.0 or command[2] != 0.0:
         raise ValueError(f"tiles evaluation: command {tuple(command)}: forward commands (vx, 0, 0) only")
-    cfg = tiles_env_config(env_cfg)
+    cfg = tiles_env_config(env_cfg, nominal)
     env = LocomotionEnv(cfg)
     spec = env.tiles
     types = list(spec.types) if types is None else list(types)

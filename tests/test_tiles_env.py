@@ -243,6 +243,12 @@ def test_tiles_evaluation_of_the_gait_alone():
         tiles_eval.evaluate_tiles(env_cfg, policy, [0], 1, 1.5, types=["lava"])
     with pytest.raises(ValueError, match="levels"):
         tiles_eval.evaluate_tiles(env_cfg, policy, [3], 1, 1.5)
+    # --nominal: the same trials on the nominal model without pushes; by default the run's own
+    ran = tiles_eval.tiles_env_config(env_cfg)
+    assert ran.randomize and ran.pushes  # the robust preset's
+    nominal = tiles_eval.tiles_env_config(env_cfg, nominal=True)
+    assert not nominal.randomize and not nominal.pushes
+    assert nominal.tiles.curriculum is False and nominal.terrain == "tiles"
     spec = terrain_tiles.TerrainSpec()
     assert tiles_eval.difficulty(spec, "slope_down", 6) == {"slope_deg": pytest.approx(14.0)}
     assert tiles_eval.difficulty(spec, "stairs_up", 7) == {"step_m": pytest.approx(0.032)}

@@ -31,6 +31,11 @@ def parse(argv):
     )
     p.add_argument("--vx", type=float, default=0.3, help="forward command [m/s]")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--nominal",
+        action="store_true",
+        help="the nominal model without pushes (default: the run's randomization and pushes)",
+    )
     p.add_argument("--json", default=None)
     return p.parse_args(argv)
 
@@ -55,7 +60,15 @@ def main(argv=None) -> int:
     types = None if args.types is None else [t.strip() for t in args.types.split(",")]
     try:
         rows = evaluate_tiles(
-            env_cfg, policy, args.levels, args.envs, args.seconds, (args.vx, 0.0, 0.0), args.seed, types
+            env_cfg,
+            policy,
+            args.levels,
+            args.envs,
+            args.seconds,
+            (args.vx, 0.0, 0.0),
+            args.seed,
+            types,
+            args.nominal,
         )
     except ValueError as e:
         raise UsageError(str(e)) from None

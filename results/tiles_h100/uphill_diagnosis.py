@@ -23,7 +23,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from quadson_mjx import training
-from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.quat import quat_to_rpy
 from quadson_mjx.tiles_eval import SETTLE_S, difficulty, run_trials, tiles_env_config
@@ -43,7 +42,7 @@ SATURATED = 0.98
 
 RUN = sys.argv[1] if len(sys.argv) > 1 else "results/tiles_h100"
 policy, env_cfg, _, _ = training.load_policy(Path(RUN))
-cfg = apply_overrides(tiles_env_config(env_cfg), ["randomize=false", "pushes=false"], prefix="env.")
+cfg = tiles_env_config(env_cfg, nominal=True)
 env = LocomotionEnv(cfg)
 spec = env.tiles
 type_idx = np.repeat([spec.types.index(t) for t, _ in TILES], PER_TILE)
