@@ -95,6 +95,11 @@ class LocomotionEnv(Env):
         self.sys = put_model(self._mj_model, cfg.impl)
         self._field = terrain.heightfield(self._mj_model)
         self._tiles = tile_spec(cfg) if cfg.terrain == "tiles" else None
+        self._type_shares = (
+            None
+            if self._tiles is None
+            else terrain_tiles.type_weights(cfg.tiles.type_weights, self._tiles.types)
+        )
         base_geom = int(name_ids(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, [BASE_GEOM])[0])
         if not np.allclose(self._mj_model.geom_quat[base_geom], (1, 0, 0, 0)):
             raise ValueError("base_collision must be aligned with the base body")
@@ -288,12 +293,15 @@ class LocomotionEnv(Env):
 
     def reset(self, rng) -> State:
         """A new episode at the home pose: at the origin, or on the tiled ground on a random tile
-        column and a level in [0, tiles.max_init_level] (reset_on_tile)."""
+        column (tiles.type_weights) and a level in [0, tiles.max_init_level] (reset_on_tile)."""
         if self._tiles is None:
             k_info, _ = jax.random.split(rng)
             return self._start(self._home_qpos, k_info)
         k_type, k_level, k = jax.random.split(rng, 3)
-        tile_type = jax.random.randint(k_type, (), 0, len(self._tiles.types))
+        if self._type_shares is None:  # every type alike (the draw of runs before type_weights)
+            tile_type = jax.random.randint(k_type, (), 0, len(self._tiles.types))
+        else:
+            tile_type = terrain_tiles.draw_type(k_type, self._type_shares)
         level = jax.random.randint(k_level, (), 0, self._config.tiles.max_init_level + 1)
         return self.reset_on_tile(k, tile_type, level)
 

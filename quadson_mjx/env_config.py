@@ -419,6 +419,7 @@ ENV_RULES: dict[str, Rule] = {
     "tiles.curriculum": Rule("bool"),
     "tiles.curriculum_up": Rule("number", 0.0, 10.0, "(of the commanded distance)"),
     "tiles.curriculum_down": Rule("number", 0.0, 10.0, "(of the commanded distance)"),  # <= up
+    "tiles.type_weights": Rule("name"),  # "type:weight,...", checked by terrain_tiles.type_weights
     **GETUP_RULES,
 }
 

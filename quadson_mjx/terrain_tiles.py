@@ -237,6 +237,10 @@ TILES = {
     "curriculum": True,
     "curriculum_up": 0.8,
     "curriculum_down": 0.5,
+    # how often each type's column is drawn at a robot's first reset, "type:weight,..." (types not
+    # named weigh 1; "" draws every type alike): "slope_up:3,stairs_up:3" puts 3 / 12 of the robots
+    # on each of those two and 1 / 12 on each other type
+    "type_weights": "",
 }
 
 
@@ -263,7 +267,43 @@ def tile_spec(cfg) -> TerrainSpec:
         raise ValueError(
             f"env.tiles.curriculum_down ({t.curriculum_down}) must be <= env.tiles.curriculum_up ({t.curriculum_up})"
         )
+    type_weights(t.get("type_weights", ""), spec.types)
     return spec
+
+
+def type_weights(text: str, types) -> np.ndarray | None:
+    """env.tiles.type_weights ("type:weight,...", each type once, weights finite and >= 0, types
+    not named weigh 1) -> the normalised share of each of `types`, or None for "" (every type
+    alike). ValueError naming the key for anything else."""
+    if not text.strip():
+        return None
+    weights = dict.fromkeys(types, 1.0)
+    seen = set()
+    for item in text.split(","):
+        name, sep, value = item.partition(":")
+        name = name.strip()
+        try:
+            w = float(value) if sep else math.nan
+        except ValueError:
+            w = math.nan
+        if name not in weights or name in seen or not (math.isfinite(w) and w >= 0):
+            raise ValueError(
+                f"env.tiles.type_weights {text!r}: 'type:weight,...' with each type once from "
+                f"{list(types)} and weights >= 0, got {item.strip()!r}"
+            )
+        seen.add(name)
+        weights[name] = w
+    total = sum(weights.values())
+    if total <= 0:
+        raise ValueError(f"env.tiles.type_weights {text!r}: at least one type needs a weight > 0")
+    return np.array([weights[t] / total for t in types])
+
+
+def draw_type(key, shares) -> jax.Array:
+    """A tile column index drawn with the probabilities `shares` (type_weights' array) -> () int32.
+    jit/vmap."""
+    shares = jnp.asarray(shares)
+    return jax.random.choice(key, shares.shape[0], p=shares).astype(jnp.int32)
 
 
 # --- in JAX, per robot: where it starts and how its level moves ---

@@ -75,6 +75,7 @@ def test_config_errors_name_the_key():
         ({"curriculum_down": 0.9}, "env.tiles.curriculum_down"),
         ({"border_m": 0.015}, "border_m"),
         ({"cell_m": 0.03}, "cell_m"),  # 1 m is no whole number of 3 cm cells
+        ({"type_weights": "slope_up:2,lava:1"}, "env.tiles.type_weights"),
     ):
         with pytest.raises(ValueError, match=words.replace(".", r"\.")):
             check_env_config(_config(**tiles))
@@ -122,6 +123,17 @@ def test_spawns_on_their_tile_and_never_inside_the_ground(env, spawn):
     # the lift is tight: a foot's sphere within clearance + its radius x tan(20 deg) + a cell's slope
     assert max(closest) < SPAWN_CLEARANCE_M + 0.01
     assert np.median(closest) < SPAWN_CLEARANCE_M + 0.002
+
+
+def test_first_resets_follow_the_type_weights():
+    """env.tiles.type_weights reaches the environment's reset: with every weight 0 but waves' and
+    obstacles', each robot starts on one of those two columns, at a level in [0, max_init_level]."""
+    weights = ",".join(f"{t}:{int(t in ('waves', 'obstacles'))}" for t in terrain_tiles.TILE_TYPES)
+    env = LocomotionEnv(_config(type_weights=weights))
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(4), 16))
+    kinds = {terrain_tiles.TILE_TYPES[i] for i in np.asarray(states.info["tile_type"])}
+    assert kinds == {"waves", "obstacles"}
+    assert np.all(np.asarray(states.info["tile_level"]) <= env.config.tiles.max_init_level)
 
 
 def test_critic_ground_scan_is_mujocos_ground_around_the_robot(env):
