@@ -99,6 +99,15 @@ COMMITTED_RUNS = {
         "QuadsonJoystickTiles",
         ["reward.tracking_sigma=0.15", "reward.orientation_coeffs=(40.0, 5.0, 0.0)"],
     ),
+    # and a third: three times the robots on slopes and stairs up, twice on stairs down
+    "results/tiles_up_h100": (
+        "QuadsonJoystickTiles",
+        [
+            "reward.tracking_sigma=0.15",
+            "reward.orientation_coeffs=(40.0, 5.0, 0.0)",
+            "tiles.type_weights=slope_up:3,stairs_up:3,stairs_down:2",
+        ],
+    ),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
