@@ -91,6 +91,16 @@ COMMITTED_RUNS = {
         "QuadsonJoystickRough",
         ["obs_history=3", "yaw_error_tau_s=0.5", "reward.weights.ang_vel_tracking_exp=1.0"],
     ),
+    # and both tracking kernels at 0.15 (m/s and rad/s)
+    "results/policy_h200_sensors_s015": (
+        "QuadsonJoystickRough",
+        [
+            "obs_history=3",
+            "yaw_error_tau_s=0.5",
+            "reward.weights.ang_vel_tracking_exp=1.0",
+            "reward.tracking_sigma=0.15",
+        ],
+    ),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
