@@ -229,7 +229,7 @@ TILES = {
     "tile_m": 2.0,
     "border_m": 1.0,
     # the height field's grid: a step's riser is one cell wide, and MJX tests each foot sphere
-    # against every triangle under its bounding box (18 on 2 cm cells, 8 on 4 cm)
+    # against every prism under its bounding box (18 on 2 cm cells, 8 on 4 cm)
     "cell_m": 0.02,
     "seed": 0,
     "max_init_level": 4,
@@ -251,7 +251,12 @@ def tile_spec(cfg) -> TerrainSpec:
     types = tuple(x.strip() for x in t.types.split(","))
     try:
         spec = TerrainSpec(
-            types=types, levels=t.levels, tile_m=t.tile_m, cell_m=t.cell_m, seed=t.seed, border_m=t.border_m
+            types=types,
+            levels=t.levels,
+            tile_m=t.tile_m,
+            cell_m=t.get("cell_m", TILES["cell_m"]),  # a config saved before the key: its grid
+            seed=t.seed,
+            border_m=t.border_m,
         )
     except ValueError as e:
         raise ValueError(f"env.tiles: {e}") from None
@@ -267,7 +272,7 @@ def tile_spec(cfg) -> TerrainSpec:
         raise ValueError(
             f"env.tiles.curriculum_down ({t.curriculum_down}) must be <= env.tiles.curriculum_up ({t.curriculum_up})"
         )
-    type_weights(t.get("type_weights", ""), spec.types)
+    type_weights(t.get("type_weights", TILES["type_weights"]), spec.types)
     return spec
 
 
