@@ -32,6 +32,8 @@ from quadson_mjx.robots.quadson.mirror import (
 from quadson_mjx.wrappers import wrap_for_evaluation
 
 ON_BACK_TILT_RAD = math.radians(150.0)  # an episode that ends tilted further lies on its back
+# the total's breakdown by the start's tilt (the body z axis against the vertical at the drop) [deg]
+START_TILT_BINS_DEG = (0.0, 45.0, 90.0, 120.0, 150.0, 180.0)
 GROUNDS = {"flat": "flat", "stones": "rough"}  # the evaluation's word -> env.terrain
 
 
@@ -82,7 +84,8 @@ def evaluate_getup(
     is env_cfg, over `drops` starts on `ground` -> (rows: one per start class of getup_start.CLASSES
     with drops, successes, success share, time to stand [s] (mean, median, 90th percentile, of the
     successes), share of steps with legs overlapping and with a chain-guarded leg, the largest motor
-    speed [rad/s]; total: the same over every start, plus non-finite resets). starts "topples":
+    speed [rad/s]; total: the same over every start, plus non-finite resets and, by the body's tilt
+    at the drop (START_TILT_BINS_DEG), drops, successes and failures ending on the back). starts "topples":
     knock-overs from the home stance instead of drops, one row "toppled". mirror_to "left" runs the
     policy mirrored in every episode that starts with the body's right side lower (gravity's body y
     below 0), so that it always meets the left side's fall ("right": the other way round), as
@@ -125,11 +128,14 @@ def evaluate_getup(
         zeros = jnp.zeros(drops)
         acc = {k: zeros for k in ("success", "time_to_stand", "overlap_steps", "guarded_steps", "max_motor_speed", "nan_reset", "final_tilt")}  # fmt: skip
         (_, acc), _ = jax.lax.scan(one, (state, acc), jax.random.split(k_run, n_steps))
-        return acc, state.info["start_class"], state.info["start_valid"]
+        q = state.pipeline_state.qpos[:, 3:7]  # wxyz at the drop: cos(tilt) = 1 - 2 (x^2 + y^2)
+        start_tilt = jnp.arccos(jnp.clip(1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1.0, 1.0))
+        return acc, state.info["start_class"], state.info["start_valid"], start_tilt
 
-    acc, label, valid = run(jax.random.PRNGKey(seed))
+    acc, label, valid, start_tilt = run(jax.random.PRNGKey(seed))
     acc = {k: np.asarray(v) for k, v in acc.items()}
     label, valid = np.asarray(label), np.asarray(valid)
+    start_tilt_deg = np.degrees(np.asarray(start_tilt))
     success = acc["success"] > 0
 
     def row(i) -> dict:
@@ -153,10 +159,22 @@ def evaluate_getup(
         rows = [{"start_class": "toppled", **row(label == TOPPLED_CLASS)}]
     else:
         rows = [{"start_class": c, **row(label == k)} for k, c in enumerate(CLASSES)]
+    edges = START_TILT_BINS_DEG
     total = {
         "ground": ground,
         **row(np.ones(drops, bool)),
         "non_finite_resets": int(acc["nan_reset"].sum()),
         "starts_without_valid_pose": int((~valid).sum()),
+        # every start, by its tilt at the drop: [low, high) deg, the last bin closed
+        "by_start_tilt": [
+            {
+                "start_tilt_deg": [lo, hi],
+                "drops": int(i.sum()),
+                "successes": int((i & success).sum()),
+                "failures_on_back": int((i & ~success & (acc["final_tilt"] > ON_BACK_TILT_RAD)).sum()),
+            }
+            for lo, hi in zip(edges[:-1], edges[1:], strict=True)
+            for i in [(start_tilt_deg >= lo) & ((start_tilt_deg < hi) | (hi == edges[-1]))]
+        ],
     }
     return rows, total

@@ -303,6 +303,15 @@ def test_committed_policy_evaluates_on_the_cpu():
     assert total["non_finite_resets"] == 0 and 0 <= total["successes"] <= 4
     assert 0 <= total["failures_on_back"] <= 4 - total["successes"]
     assert total["failures_on_back"] == sum(r["failures_on_back"] for r in rows)
+    # the breakdown by the tilt at the drop covers every drop once, in the bins it names
+    from quadson_mjx.getup_eval import START_TILT_BINS_DEG
+
+    bins = total["by_start_tilt"]
+    assert [b["start_tilt_deg"] for b in bins] == [
+        [lo, hi] for lo, hi in zip(START_TILT_BINS_DEG[:-1], START_TILT_BINS_DEG[1:], strict=True)
+    ]
+    for key in ("drops", "successes", "failures_on_back"):
+        assert sum(b[key] for b in bins) == total[key], key
     saved = json.loads((ROOT / "results/getup_h100/eval_gpu.json").read_text())
     assert set(saved["grounds"]) == {"flat", "stones"}
 

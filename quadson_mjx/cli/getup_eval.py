@@ -96,6 +96,14 @@ def main(argv=None) -> int:
         for r in rows:
             print(_line(r["start_class"], r))
         print(_line("all", total))
+        print(
+            "by tilt at the drop: "
+            + ", ".join(
+                f"{b['start_tilt_deg'][0]:.0f}-{b['start_tilt_deg'][1]:.0f} deg {b['successes']}/{b['drops']}"
+                f" ({b['failures_on_back']} on back)"
+                for b in total["by_start_tilt"]
+            )
+        )
         if total["non_finite_resets"] or total["starts_without_valid_pose"]:
             print(
                 f"non-finite resets {total['non_finite_resets']}, starts without a valid pose {total['starts_without_valid_pose']}"
