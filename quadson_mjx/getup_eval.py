@@ -29,6 +29,7 @@ from quadson_mjx.robots.quadson.mirror import (
     trained_mirror_to,
     wants_mirror,
 )
+from quadson_mjx.sensors import gravity_direction
 from quadson_mjx.wrappers import wrap_for_evaluation
 
 ON_BACK_TILT_RAD = math.radians(150.0)  # an episode that ends tilted further lies on its back
@@ -128,8 +129,8 @@ def evaluate_getup(
         zeros = jnp.zeros(drops)
         acc = {k: zeros for k in ("success", "time_to_stand", "overlap_steps", "guarded_steps", "max_motor_speed", "nan_reset", "final_tilt")}  # fmt: skip
         (_, acc), _ = jax.lax.scan(one, (state, acc), jax.random.split(k_run, n_steps))
-        q = state.pipeline_state.qpos[:, 3:7]  # wxyz at the drop: cos(tilt) = 1 - 2 (x^2 + y^2)
-        start_tilt = jnp.arccos(jnp.clip(1.0 - 2.0 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1.0, 1.0))
+        up = -gravity_direction(state.pipeline_state.qpos[:, 3:7])[:, 2]  # cos(tilt) at the drop
+        start_tilt = jnp.arccos(jnp.clip(up, -1.0, 1.0))
         return acc, state.info["start_class"], state.info["start_valid"], start_tilt
 
     acc, label, valid, start_tilt = run(jax.random.PRNGKey(seed))
@@ -169,12 +170,10 @@ def evaluate_getup(
         "by_start_tilt": [
             {
                 "start_tilt_deg": [lo, hi],
-                "drops": int(i.sum()),
-                "successes": int((i & success).sum()),
-                "failures_on_back": int((i & ~success & (acc["final_tilt"] > ON_BACK_TILT_RAD)).sum()),
+                **{k: r[k] for k in ("drops", "successes", "failures_on_back")},
             }
             for lo, hi in zip(edges[:-1], edges[1:], strict=True)
-            for i in [(start_tilt_deg >= lo) & ((start_tilt_deg < hi) | (hi == edges[-1]))]
+            for r in [row((start_tilt_deg >= lo) & ((start_tilt_deg < hi) | (hi == edges[-1])))]
         ],
     }
     return rows, total

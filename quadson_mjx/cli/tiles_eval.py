@@ -60,16 +60,9 @@ def main(argv=None) -> int:
     types = None if args.types is None else [t.strip() for t in args.types.split(",")]
     try:
         rows = evaluate_tiles(
-            env_cfg,
-            policy,
-            args.levels,
-            args.envs,
-            args.seconds,
-            (args.vx, 0.0, 0.0),
-            args.seed,
-            types,
-            args.nominal,
-        )
+            env_cfg, policy, args.levels, args.envs, args.seconds, (args.vx, 0.0, 0.0), args.seed, types,
+            nominal=args.nominal,
+        )  # fmt: skip
     except ValueError as e:
         raise UsageError(str(e)) from None
     print(
