@@ -118,6 +118,16 @@ COMMITTED_RUNS = {
             "tiles.type_weights=slope_up:3,stairs_up:3,stairs_down:2",
         ],
     ),
+    # and a fourth: the gait's swing 1.4 times higher (7 cm)
+    "results/tiles_swing_h200": (
+        "QuadsonJoystickTiles",
+        [
+            "reward.tracking_sigma=0.15",
+            "reward.orientation_coeffs=(40.0, 5.0, 0.0)",
+            "tiles.type_weights=slope_up:3,stairs_up:3,stairs_down:2",
+            "gait_scale.step_height_m=1.4",
+        ],
+    ),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
