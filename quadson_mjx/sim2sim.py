@@ -16,7 +16,16 @@ the step; exact and within one control step, as the MJX gait evaluation counts i
 the run. `summarize` pools runs per condition: the RMS over all their steps, falls as a share of
 runs.
 
-Command sets: the 13-command sweep, the step schedule, or "gait": the policy's own gait command,
+Terrains: "flat", "stones", or one tile of a tiles policy's training ground, "tiles:TYPE:LEVEL"
+(`tile_terrain`): the whole field of its env config, the run starting at that tile's centre (within
+TILE_START_M) with a seeded heading. Every run also reports the distance it covered along its
+command (the body-frame velocity along the command, capped at the command's speed, summed over the
+whole run as the terrain curriculum sums it) against the distance commanded, and success: no fall
+and at least SUCCESS_SHARE of it (terrain_tiles' curriculum and the MJX tiles evaluation count the
+same).
+
+Command sets: the 13-command sweep, the step schedule, "tile": TILE_COMMAND held (the MJX tiles
+evaluation's trial), or "gait": the policy's own gait command,
 forward at its gait's speed (DeployLoop.gait_command). A policy trained without commands (the
 five gait policies) walks only at that speed and does not observe a command: it runs the "gait"
 set only (suite_jobs refuses the others).
@@ -61,7 +70,12 @@ SWEEP = (
 )
 STEP_SCHEDULE = ((0.0, 0.0, 0.0), (0.4, 0.0, 0.0), (0.0, 0.0, 0.0), (-0.2, 0.0, 0.0))  # 5 s each
 GAIT = "gait"  # the command set of the policy's own gait command (its schedule: None, see run_one)
-COMMAND_SETS = ("sweep", "step", "all", GAIT)
+TILE = "tile"  # the command set of a tile trial: TILE_COMMAND held
+TILE_COMMAND = (0.3, 0.0, 0.0)  # quadson_mjx.tiles_eval's default trial command
+COMMAND_SETS = ("sweep", "step", "all", TILE, GAIT)
+TILE_PREFIX = "tiles:"
+TILE_START_M = 0.02  # a tile run starts this close to its tile's centre (as quadson_mjx.tiles_eval)
+SUCCESS_SHARE = 0.8  # of the commanded distance (quadson_mjx.wrappers.SUCCESS_SHARE; a test holds them equal)
 DEFAULT_RANDOMIZATION = {
     "friction": (0.5, 1.2),
     "mass_scale": (0.85, 1.15),
@@ -110,6 +124,8 @@ def schedules(which: str, seconds: float) -> list[tuple[str, tuple | None, float
     the policy's deploy loop."""
     if which == GAIT:
         return [(GAIT, None, seconds)]
+    if which == TILE:
+        return [(TILE, ((0.0, TILE_COMMAND),), seconds)]
     out = []
     if which in ("sweep", "all"):
         out += [(f"cmd{i:02d}", ((0.0, c),), seconds) for i, c in enumerate(SWEEP)]
@@ -129,6 +145,39 @@ def check_command_set(adapter, which: str, name: str) -> None:
             f"policy {name} was trained without commands (it walks its gait at the gait's own "
             f"speed and observes no command): run it with --commands gait, not {which!r}"
         )
+
+
+def tile_field(env_config: dict):
+    """The terrain_tiles.TerrainSpec of a policy's env config; ValueError for a policy not trained
+    on the tiled ground."""
+    if env_config.get("terrain") != "tiles" or "tiles" not in env_config:
+        raise ValueError("the policy was not trained on the tiled ground (no env.tiles)")
+    import ml_collections
+
+    from quadson_mjx import terrain_tiles  # JAX: imported for the tiles only
+
+    return terrain_tiles.tile_spec(ml_collections.ConfigDict({"tiles": env_config["tiles"]}))
+
+
+def tile_terrain(terrain: str, env_config: dict):
+    """A terrain "tiles:TYPE:LEVEL" -> (tile_field(env_config), type, level); None for "flat" and
+    "stones"; ValueError for any other terrain, a policy not trained on the tiles, or a type or
+    level its field does not have."""
+    if terrain in TERRAINS:
+        return None
+    kind, sep, level = terrain.removeprefix(TILE_PREFIX).partition(":")
+    if not terrain.startswith(TILE_PREFIX) or not sep:
+        raise ValueError(f"terrain {terrain!r}: flat, stones or {TILE_PREFIX}TYPE:LEVEL")
+    try:
+        spec = tile_field(env_config)
+    except ValueError as e:
+        raise ValueError(f"terrain {terrain!r}: {e}") from None
+    if kind not in spec.types or not level.isdigit() or not 0 <= int(level) < spec.levels:
+        raise ValueError(
+            f"terrain {terrain!r}: the policy's field has types {', '.join(spec.types)} and levels "
+            f"0..{spec.levels - 1}"
+        )
+    return spec, kind, int(level)
 
 
 def clip_schedule(schedule, env_config: dict):
@@ -172,16 +221,35 @@ def make_plant(
     if randomize:
         rand = {**DEFAULT_RANDOMIZATION, **env_config.get("randomization", {}), **(ranges or {})}
     push = {**DEFAULT_PUSH, **env_config.get("push", {})} if pushes else None
-    model = P.plant_model(robot, terrain)
+    tile = tile_terrain(terrain, env_config)
+    model = P.plant_model(robot, terrain) if tile is None else P.plant_model(robot, "tiles", tiles=tile[0])
     return P.Plant(robot, model, servo, sensors or P.SensorParams(), seed, rand, push)
 
 
+def start_xy(terrain: str, env_config: dict, rng) -> tuple[float, float]:
+    """Where a run starts: the origin, or on a tile within TILE_START_M of its centre (drawn from rng)."""
+    tile = tile_terrain(terrain, env_config)
+    if tile is None:
+        return (0.0, 0.0)
+    from quadson_mjx.terrain_tiles import tile_center
+
+    spec, kind, level = tile
+    x, y = tile_center(spec, spec.types.index(kind), level) + rng.uniform(-TILE_START_M, TILE_START_M, 2)
+    return (float(x), float(y))
+
+
 def run_episode(
-    adapter: LoopAdapter, plant: P.Plant, schedule, duration_s: float, seed: int = 0, recorder=None
+    adapter: LoopAdapter,
+    plant: P.Plant,
+    schedule,
+    duration_s: float,
+    seed: int = 0,
+    recorder=None,
+    terrain: str = "flat",
 ) -> dict:
-    """One closed-loop run: reset the plant at the origin with a seeded heading, start the loop on
-    its sensor readings, then every ctrl_dt: read, step the loop, send, advance the physics.
-    -> the run's metrics (see the module docstring)."""
+    """One closed-loop run: reset the plant at the terrain's start (start_xy) with a seeded heading,
+    start the loop on its sensor readings, then every ctrl_dt: read, step the loop, send, advance
+    the physics. -> the run's metrics (see the module docstring)."""
     term = {
         "max_tilt_rad": math.pi / 4,
         "min_height_m": 0.1,
@@ -191,11 +259,13 @@ def run_episode(
     term.update(adapter.env_config.get("termination", {}))
     dt = adapter.ctrl_dt
     rng = np.random.default_rng(seed)
-    plant.reset((0.0, 0.0), float(rng.uniform(-math.pi, math.pi)))
+    yaw = float(rng.uniform(-math.pi, math.pi))
+    plant.reset(start_xy(terrain, adapter.env_config, rng), yaw)
     adapter.reset(plant.read())
     n = int(round(duration_s / dt))
     err, vx, forces, stance = [], [], [], []
     invalid, faults, fell, fall_t, off = 0, 0, False, None, False
+    progress, commanded = 0.0, 0.0
     truth = plant.truth()
     for k in range(n):
         command = command_at(schedule, k * dt)
@@ -205,6 +275,11 @@ def run_episode(
         plant.advance(dt)
         truth = plant.truth()
         t = (k + 1) * dt
+        speed = math.hypot(command[0], command[1])
+        if speed > 0:  # along the command, capped at its speed
+            along = (truth["lin_vel"][0] * command[0] + truth["lin_vel"][1] * command[1]) / speed
+            progress += min(max(along, 0.0), speed) * dt
+            commanded += speed * dt
         if t > WARMUP_S + 1e-9:
             err.append([truth["lin_vel"][0], truth["lin_vel"][1], truth["ang_vel"][2]] - command)
             vx.append(truth["lin_vel"][0])
@@ -247,13 +322,22 @@ def run_episode(
         "invalid_ik_steps": invalid,
         "fault_steps": faults,
         "push_count": plant.pushes,
+        "progress_m": progress,
+        "commanded_m": commanded,
+        "success": bool(not fell and not off and progress >= SUCCESS_SHARE * commanded),
     }
 
 
 def plant_seed_of(seed: int, schedule_index: int = 0, terrain: str = "flat") -> int:
     """The plant's seed (model draw, sensor biases and noise, pushes) of a run: one stream per seed,
     command schedule and terrain."""
-    return 1_000_003 * seed + 7919 * schedule_index + (17 if terrain == "stones" else 0)
+    shift = {"flat": 0, "stones": 17}.get(terrain)
+    if shift is None:  # a tile "tiles:TYPE:LEVEL": one stream per type and level
+        from quadson_mjx.terrain_tiles import TILE_TYPES
+
+        kind, _, level = terrain.removeprefix(TILE_PREFIX).partition(":")
+        shift = 100 + len(TILE_TYPES) * int(level) + TILE_TYPES.index(kind)
+    return 1_000_003 * seed + 7919 * schedule_index + shift
 
 
 def run_one(job: dict) -> dict:
@@ -282,7 +366,7 @@ def run_one(job: dict) -> dict:
 
         recorder = Recorder(job.get("mcap"), job.get("video"), plant, adapter, job)
     try:
-        row = run_episode(adapter, plant, schedule, job["duration_s"], seed, recorder)
+        row = run_episode(adapter, plant, schedule, job["duration_s"], seed, recorder, job["terrain"])
     finally:
         if recorder is not None:
             recorder.close()
@@ -329,7 +413,9 @@ def suite_jobs(
             for terrain in terrains:
                 for si, (label, sched, dur) in enumerate(schedules(which, seconds)):
                     for j, seed in enumerate(seeds):
-                        tag = f"{name}_{vs if observes else 'none'}_{terrain}_{label}_s{seed}"
+                        tag = (
+                            f"{name}_{vs if observes else 'none'}_{terrain.replace(':', '-')}_{label}_s{seed}"
+                        )
                         want = out_dir is not None and (mcap == "all" or (mcap == "first" and j == 0))
                         jobs.append(
                             {

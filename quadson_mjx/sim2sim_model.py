@@ -12,7 +12,8 @@ the other way from quadson_mjx.env_model.training_model: nothing stripped, more 
 - ground: the plane, or the training stone field (the same heights, quadson_mjx.mjcf's map as the
   robot's rough scene scales it) mirror-tiled 3 x 3 into a 24 x 24 m field, so that a 20 s
   command at 0.5 m/s stays on it; the flat start patch at the origin is filled with the stones
-  2 m beside it, so that a run starts ON stones.
+  2 m beside it, so that a run starts ON stones; or the tiled ground of a policy's env config
+  (quadson_mjx.terrain_tiles: the same heights, extent and floor height as training's).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 TIMESTEP_S = 0.002  # [s]; training steps the model's 0.004 s
 STONES_TILES = 3  # the stone field mirrored 3 x 3: 24 x 24 m
 STONES_PATCH_FILL_SHIFT_M = 2.0  # the start patch takes the stones this far along +x
-TERRAINS = ("flat", "stones")
+TERRAINS = ("flat", "stones")  # and "tiles", with a TerrainSpec
 
 
 def _tiled_stones(rough: mujoco.MjModel) -> np.ndarray:
@@ -59,19 +60,30 @@ def _model_xml(m: mujoco.MjModel) -> str:
             return f.read()
 
 
-def plant_model(robot, terrain: str, timestep_s: float = TIMESTEP_S) -> mujoco.MjModel:
-    """robot: quadson_mjx.robots.Robot; terrain: "flat" | "stones" -> the sim2sim MjModel: the
-    robot's MJCF with full contacts, torque motors, sensors and limits on, the given timestep."""
-    if terrain not in ("flat", "stones"):
-        raise ValueError(f"unknown terrain {terrain!r}: flat or stones")
+def plant_model(robot, terrain: str, timestep_s: float = TIMESTEP_S, tiles=None) -> mujoco.MjModel:
+    """robot: quadson_mjx.robots.Robot; terrain: "flat" | "stones" | "tiles" (with tiles: the
+    terrain_tiles.TerrainSpec of the policy's env config) -> the sim2sim MjModel: the robot's MJCF
+    with full contacts, torque motors, sensors and limits on, the given timestep."""
+    if terrain not in (*TERRAINS, "tiles") or (terrain == "tiles") != (tiles is not None):
+        raise ValueError(f"unknown terrain {terrain!r}: flat, stones, or tiles with its TerrainSpec")
     src = robot.load_model("flat" if terrain == "flat" else "rough")
     xml = _model_xml(src)
-    heights = None
-    if terrain == "stones":
-        heights = _tiled_stones(src)
+    heights, data, floor_z = None, None, None
+    if terrain != "flat":
+        if terrain == "stones":
+            heights = _tiled_stones(src)
+            sx, sy, sz, base = src.hfield_size[0]
+            size = f"{sx * STONES_TILES:.9g} {sy * STONES_TILES:.9g} {sz:.9g} {base:.9g}"
+            data = heights.ravel()
+        else:  # the training ground (env_model.tiles_model builds the same from the same scene)
+            from quadson_mjx import terrain_tiles  # JAX: imported for the tiles only
+            from quadson_mjx.terrain import FLOOR_GEOM
+
+            heights = terrain_tiles.tile_grid(tiles)
+            size_m, floor_z = terrain_tiles.hfield_size(heights, tiles)
+            size = " ".join(f"{v:.9g}" for v in size_m)
+            data = terrain_tiles.hfield_data(heights)
         nrow, ncol = heights.shape
-        sx, sy, sz, base = src.hfield_size[0]
-        size = f"{sx * STONES_TILES:.9g} {sy * STONES_TILES:.9g} {sz:.9g} {base:.9g}"
         xml, n = re.subn(
             r'<hfield name="([^"]+)"[^>]*/>',
             rf'<hfield name="\1" nrow="{nrow}" ncol="{ncol}" size="{size}"/>',
@@ -80,6 +92,8 @@ def plant_model(robot, terrain: str, timestep_s: float = TIMESTEP_S) -> mujoco.M
         if n != 1:
             raise ValueError("the rough scene must have exactly one height field")
     spec = mujoco.MjSpec.from_string(xml)
+    if floor_z is not None:  # MuJoCo raises the field's [0, 1] data by its relief from the geom's z
+        spec.geom(FLOOR_GEOM).pos = [0.0, 0.0, floor_z]
     base_geom = mujoco.mj_name2id(src, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
     ref = spec.geoms[base_geom]  # the collision class's contact parameters
     root = mujoco.mj_name2id(src, mujoco.mjtObj.mjOBJ_BODY, robot.root_body)
@@ -106,8 +120,8 @@ def plant_model(robot, terrain: str, timestep_s: float = TIMESTEP_S) -> mujoco.M
         a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         a.forcelimited = mujoco.mjtLimited.mjLIMITED_FALSE
     m = spec.compile()
-    if heights is not None:
-        m.hfield_data[:] = heights.ravel()
+    if data is not None:
+        m.hfield_data[:] = data
     m.opt.timestep = timestep_s
     m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     m.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON

@@ -21,12 +21,14 @@ def _share(hits: float, n: int) -> float | None:
 
 
 def summarize(rows, by=GROUP_KEYS, split_step: bool = True) -> list[dict]:
-    """Pools runs per condition (and the step schedule and the gait command apart from the sweep):
-    runs, falls, fall rate, RMS and mean vx over every tracked step of the pooled runs, the contact
-    pattern's share of those steps (exact and within one step), invalid-IK and fault steps."""
+    """Pools runs per condition (and the step schedule, the tile trial and the gait command apart
+    from the sweep): runs, falls, fall rate, RMS and mean vx over every tracked step of the pooled
+    runs, the contact pattern's share of those steps (exact and within one step), invalid-IK and
+    fault steps, the share of runs that succeeded and of the commanded distance covered (runs
+    written before those keys: None)."""
     groups: dict[tuple, list] = {}
     for r in rows:
-        commands = r["label"] if r["label"] in ("step", "gait") else "sweep"
+        commands = r["label"] if r["label"] in ("step", "gait", "tile") else "sweep"
         key = tuple(r[k] for k in by) + ((commands,) if split_step else ())
         groups.setdefault(key, []).append(r)
     out = []
@@ -50,6 +52,12 @@ def summarize(rows, by=GROUP_KEYS, split_step: bool = True) -> list[dict]:
                 "invalid_ik_steps": sum(r["invalid_ik_steps"] for r in rs),
                 "fault_steps": sum(r["fault_steps"] for r in rs),
                 "steps": sum(r["steps"] for r in rs),
+                "success": _share(sum(r["success"] for r in rs), len(rs))
+                if all("success" in r for r in rs)
+                else None,
+                "distance_share": _share(
+                    sum(r.get("progress_m", 0.0) for r in rs), sum(r.get("commanded_m", 0.0) for r in rs)
+                ),
             }
         )
     return out
@@ -60,8 +68,11 @@ def format_table(
     columns=("policy_name", "velocity_source", "terrain", "commands", "randomize", "pushes", "latency_s"),
 ) -> str:
     """A plain-text table of summarize's rows: the mean vx only for the gait command (a sweep's
-    commands differ), the contact pattern within one control step."""
+    commands differ), the contact pattern within one control step; the success and distance
+    shares where a row is a tile trial."""
+    tiles = any(s.get("commands") == "tile" for s in summary)
     head = [*columns, "runs", "falls", "vx_rms", "vy_rms", "yaw_rms", "vx_mean", "pattern", "ik_inv"]
+    head += ["success", "distance"] if tiles else []
     lines = [head]
     for s in summary:
         f = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731
@@ -78,6 +89,14 @@ def format_table(
                 pattern,
                 str(s["invalid_ik_steps"]),
             ]
+            + (
+                [
+                    "-" if s["success"] is None else f"{100 * s['success']:.0f}%",
+                    f(s["distance_share"]),
+                ]
+                if tiles
+                else []
+            )
         )
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
     return "\n".join("  ".join(x.ljust(w) for x, w in zip(line, widths, strict=True)) for line in lines)

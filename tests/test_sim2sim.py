@@ -283,6 +283,7 @@ def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, gait_policies, 
         [str(path), "--randomize", "--randomization", "mass=0.9,1.1"],
         [str(path), "--randomize", "--randomization", "mass_scale=1.1,0.9"],
         [str(path), "--randomize", "--randomization", "friction=0.5"],
+        [str(path), "--tiles", "slope_up", "--levels", "3"],  # not trained on the tiled ground
     ]
     for argv in cases:
         assert main(argv) == 2, argv

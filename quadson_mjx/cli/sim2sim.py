@@ -6,6 +6,7 @@ MCAP files for Foxglove and, on request, videos.
     quadson-sim2sim new.onnx old.onnx --terrain stones --randomize --pushes --latency-ms 60
 
     quadson-sim2sim walk.onnx bound.onnx --commands gait --terrain flat   # gait policies
+    quadson-sim2sim tiles.onnx --tiles slope_up,stairs_up --levels 3 6 7 --seeds 16   # tiled ground
 (`python eval/sim2sim.py ...` runs the same command.)
 
 Each policy runs every command of --commands (the 13-command sweep, each for --seconds; the step
@@ -19,6 +20,12 @@ replaces one of them for every policy (to compare policies trained on different 
 OUT/summary.json (the command line, the plant's settings, one row per condition, one per run),
 OUT/mcap/*.mcap (the first seed's runs; --mcap all|none), OUT/video/*.mp4 with --video.
 Check a file: python -m quadson_mjx.mcap_check FILE --rollout. Bad input: one line, exit status 2.
+
+--tiles TYPES --levels L ... (a policy trained on the tiled ground): instead of --terrain, each
+tile (type, level) of the policy's own training field, every run starting at the tile's centre
+and holding vx 0.3 m/s for --seconds (default 3; at most the walk to the tile's edge), the trial
+of the MJX tiles evaluation (quadson-tiles-eval); the table adds the share of runs that succeeded
+(no fall, >= 80 % of the commanded distance) and of the distance covered.
 """
 
 from __future__ import annotations
@@ -49,15 +56,26 @@ def parse(argv):
     p.add_argument(
         "policy", nargs="+", help="exported policy files (*.onnx or *.npz; python -m quadson_mjx.export)"
     )
-    p.add_argument("--terrain", default="both", choices=("flat", "stones", "both"))
+    p.add_argument("--terrain", default=None, choices=("flat", "stones", "both"), help="default: both")
+    p.add_argument(
+        "--tiles",
+        default=None,
+        metavar="TYPES",
+        help="tile types of the policy's tiled ground (comma list or all)",
+    )
+    p.add_argument("--levels", type=int, nargs="+", default=None, help="with --tiles: the tiles' levels")
     p.add_argument(
         "--commands",
-        default="all",
+        default=None,
         choices=S.COMMAND_SETS,
-        help="the command sweep, the step schedule, both (all), or the policy's gait command (gait)",
+        help="the command sweep, the step schedule, both (all, the default), the tile trial (tile, "
+        "the default with --tiles), or the policy's gait command (gait)",
     )
     p.add_argument(
-        "--seconds", type=float, default=20.0, help="per sweep command; the step schedule's total [s]"
+        "--seconds",
+        type=float,
+        default=None,
+        help="per sweep command; the step schedule's total [s] (default 20; 3 with --tiles)",
     )
     p.add_argument("--latency-ms", type=float, default=20.0, help="servo latency after the loop's step [ms]")
     p.add_argument(
@@ -87,6 +105,16 @@ def parse(argv):
     p.add_argument("--workers", type=int, default=1, help="processes running the runs")
     p.add_argument("--per-command", action="store_true", help="also print one line per command and seed")
     a = p.parse_args(argv)
+    tiles = a.tiles is not None
+    if tiles and (a.terrain is not None or a.commands not in (None, S.TILE)):
+        raise UsageError(
+            "--tiles runs the tile trial on the tiles it names: leave out --terrain and --commands"
+        )
+    if (a.levels is not None) != tiles:
+        raise UsageError("--tiles TYPES and --levels L ... go together")
+    a.terrain = a.terrain or "both"
+    a.commands = a.commands or (S.TILE if tiles else "all")
+    a.seconds = a.seconds if a.seconds is not None else (3.0 if tiles else 20.0)
     check_number("--seconds", a.seconds, 1.0, 3600.0)
     check_number("--latency-ms", a.latency_ms, 0.0, MAX_LATENCY_MS)
     check_number("--seeds", a.seeds, 1, 1000)
@@ -115,7 +143,34 @@ def parse(argv):
             S.check_command_set(adapter, a.commands, path)
         except ValueError as e:
             raise UsageError(str(e)) from None
+        if tiles:
+            a.terrains = tile_terrains(a, adapter.env_config, path)
+    if not tiles:
+        a.terrains = S.TERRAINS if a.terrain == "both" else (a.terrain,)
     return a
+
+
+def tile_terrains(a, env_config: dict, path) -> tuple[str, ...]:
+    """--tiles TYPES --levels L ... -> ("tiles:TYPE:LEVEL", ...) on the policy's own field, its
+    --seconds of the tile trial inside the tile; UsageError otherwise."""
+    try:
+        spec = S.tile_field(env_config)
+    except ValueError as e:
+        raise UsageError(f"--tiles: policy {path}: {e}") from None
+    types = spec.types if a.tiles == "all" else tuple(t.strip() for t in a.tiles.split(","))
+    terrains = tuple(f"{S.TILE_PREFIX}{t}:{lv}" for t in types for lv in a.levels)
+    for t in terrains:
+        try:
+            S.tile_terrain(t, env_config)
+        except ValueError as e:
+            raise UsageError(f"--tiles {a.tiles} --levels {' '.join(map(str, a.levels))}: {e}") from None
+    walk = S.TILE_COMMAND[0] * a.seconds
+    if walk > spec.tile_m / 2 - S.TILE_START_M:
+        raise UsageError(
+            f"--seconds {a.seconds}: at {S.TILE_COMMAND[0]} m/s the robot walks {walk:.2f} m from the "
+            f"centre of a {spec.tile_m} m tile and leaves it: at most {(spec.tile_m / 2 - S.TILE_START_M) / S.TILE_COMMAND[0]:.2f} s"
+        )
+    return terrains
 
 
 @one_line_errors
@@ -134,7 +189,7 @@ def main(argv=None) -> int:
     ]
     sensors = sim2sim_plant.SensorParams(enabled=not a.no_sensor_noise)
     kw = dict(
-        terrains=S.TERRAINS if a.terrain == "both" else (a.terrain,),
+        terrains=a.terrains,
         which=a.commands,
         seconds=a.seconds,
         seeds=tuple(range(a.seeds)),
