@@ -48,6 +48,17 @@ from quadson_mjx import sim2sim_plant as P
 from quadson_mjx.robots import get_robot
 from quadson_mjx.sim2sim_loop import VELOCITY_SOURCES, LoopAdapter  # noqa: F401 (the module's API)
 from quadson_mjx.sim2sim_table import GROUP_KEYS, format_table, rms, summarize  # noqa: F401 (the module's API)
+from quadson_mjx.sim2sim_tiles import (  # noqa: F401 (the module's API)
+    SUCCESS_SHARE,
+    TILE,
+    TILE_COMMAND,
+    TILE_PREFIX,
+    TILE_START_M,
+    start_xy,
+    tile_field,
+    tile_seed_shift,
+    tile_terrain,
+)
 
 TERRAINS = P.TERRAINS
 WARMUP_S = 1.0  # tracking errors count after this much of a run [s]
@@ -70,12 +81,7 @@ SWEEP = (
 )
 STEP_SCHEDULE = ((0.0, 0.0, 0.0), (0.4, 0.0, 0.0), (0.0, 0.0, 0.0), (-0.2, 0.0, 0.0))  # 5 s each
 GAIT = "gait"  # the command set of the policy's own gait command (its schedule: None, see run_one)
-TILE = "tile"  # the command set of a tile trial: TILE_COMMAND held
-TILE_COMMAND = (0.3, 0.0, 0.0)  # quadson_mjx.tiles_eval's default trial command
 COMMAND_SETS = ("sweep", "step", "all", TILE, GAIT)
-TILE_PREFIX = "tiles:"
-TILE_START_M = 0.02  # a tile run starts this close to its tile's centre (as quadson_mjx.tiles_eval)
-SUCCESS_SHARE = 0.8  # of the commanded distance (quadson_mjx.wrappers.SUCCESS_SHARE; a test holds them equal)
 DEFAULT_RANDOMIZATION = {
     "friction": (0.5, 1.2),
     "mass_scale": (0.85, 1.15),
@@ -147,39 +153,6 @@ def check_command_set(adapter, which: str, name: str) -> None:
         )
 
 
-def tile_field(env_config: dict):
-    """The terrain_tiles.TerrainSpec of a policy's env config; ValueError for a policy not trained
-    on the tiled ground."""
-    if env_config.get("terrain") != "tiles" or "tiles" not in env_config:
-        raise ValueError("the policy was not trained on the tiled ground (no env.tiles)")
-    import ml_collections
-
-    from quadson_mjx import terrain_tiles  # JAX: imported for the tiles only
-
-    return terrain_tiles.tile_spec(ml_collections.ConfigDict({"tiles": env_config["tiles"]}))
-
-
-def tile_terrain(terrain: str, env_config: dict):
-    """A terrain "tiles:TYPE:LEVEL" -> (tile_field(env_config), type, level); None for "flat" and
-    "stones"; ValueError for any other terrain, a policy not trained on the tiles, or a type or
-    level its field does not have."""
-    if terrain in TERRAINS:
-        return None
-    kind, sep, level = terrain.removeprefix(TILE_PREFIX).partition(":")
-    if not terrain.startswith(TILE_PREFIX) or not sep:
-        raise ValueError(f"terrain {terrain!r}: flat, stones or {TILE_PREFIX}TYPE:LEVEL")
-    try:
-        spec = tile_field(env_config)
-    except ValueError as e:
-        raise ValueError(f"terrain {terrain!r}: {e}") from None
-    if kind not in spec.types or not level.isdigit() or not 0 <= int(level) < spec.levels:
-        raise ValueError(
-            f"terrain {terrain!r}: the policy's field has types {', '.join(spec.types)} and levels "
-            f"0..{spec.levels - 1}"
-        )
-    return spec, kind, int(level)
-
-
 def clip_schedule(schedule, env_config: dict):
     """The schedule with each command clipped to the policy's trained command range (as the deploy
     loop clips what it observes): the reference the tracking errors are measured against."""
@@ -224,18 +197,6 @@ def make_plant(
     tile = tile_terrain(terrain, env_config)
     model = P.plant_model(robot, terrain) if tile is None else P.plant_model(robot, "tiles", tiles=tile[0])
     return P.Plant(robot, model, servo, sensors or P.SensorParams(), seed, rand, push)
-
-
-def start_xy(terrain: str, env_config: dict, rng) -> tuple[float, float]:
-    """Where a run starts: the origin, or on a tile within TILE_START_M of its centre (drawn from rng)."""
-    tile = tile_terrain(terrain, env_config)
-    if tile is None:
-        return (0.0, 0.0)
-    from quadson_mjx.terrain_tiles import tile_center
-
-    spec, kind, level = tile
-    x, y = tile_center(spec, spec.types.index(kind), level) + rng.uniform(-TILE_START_M, TILE_START_M, 2)
-    return (float(x), float(y))
 
 
 def run_episode(
@@ -332,11 +293,7 @@ def plant_seed_of(seed: int, schedule_index: int = 0, terrain: str = "flat") -> 
     """The plant's seed (model draw, sensor biases and noise, pushes) of a run: one stream per seed,
     command schedule and terrain."""
     shift = {"flat": 0, "stones": 17}.get(terrain)
-    if shift is None:  # a tile "tiles:TYPE:LEVEL": one stream per type and level
-        from quadson_mjx.terrain_tiles import TILE_TYPES
-
-        kind, _, level = terrain.removeprefix(TILE_PREFIX).partition(":")
-        shift = 100 + len(TILE_TYPES) * int(level) + TILE_TYPES.index(kind)
+    shift = tile_seed_shift(terrain) if shift is None else shift
     return 1_000_003 * seed + 7919 * schedule_index + shift
 
 

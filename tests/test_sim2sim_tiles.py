@@ -1,4 +1,4 @@
-"""Sim-to-sim on the tiled ground (quadson_mjx.sim2sim with "tiles:TYPE:LEVEL" terrains): the
+"""Sim-to-sim on the tiled ground (quadson_mjx.sim2sim_tiles: "tiles:TYPE:LEVEL" terrains): the
 plant's ground against the training model's (MuJoCo ray casts), the tile names and their refusals,
 the start on a tile, and a short closed loop of a committed tiles policy through the deploy loop
 whose distance and success are checked against MuJoCo's own base position.
