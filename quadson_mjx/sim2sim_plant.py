@@ -174,8 +174,9 @@ class Plant:
 
     # --- episode ---
     def reset(self, xy=(0.0, 0.0), yaw: float = 0.0) -> None:
-        """The home pose at xy [m] and heading yaw [rad], lowered onto the ground under the feet,
-        standing SETTLE_S on the home targets; draws the episode's model, biases and push times."""
+        """The home pose at xy [m] and heading yaw [rad], raised or lowered until the foot over the
+        highest ground is 2 mm above it, standing SETTLE_S on the home targets; draws the episode's
+        model, biases and push times."""
         _restore_fields(self.m, self.nominal)
         self.kp, self.kd, self.peak, self.stall = (
             self.kp0.copy(),
@@ -196,7 +197,7 @@ class Plant:
             self.ground_height(p[:2]) - (p[2] - self.m.geom_size[g][0])
             for p, g in zip(feet, self.feet, strict=True)
         )
-        d.qpos[2] += max(lift, 0.0) + 0.002
+        d.qpos[2] += lift + 0.002  # lowered, too, onto ground below 0 (a pit of the tiled ground)
         mujoco.mj_forward(self.m, d)
         self.step_index = 0
         self._queue = []  # (physics step at which it acts, targets)

@@ -107,6 +107,19 @@ def exported(tmp_path_factory):
     return export.export_run(RUN, tmp_path_factory.mktemp("tiles") / "tiles.onnx")
 
 
+def test_regression_a_run_in_a_pit_starts_on_the_ground_not_dropped_into_it(robot, tiles_config):
+    # the centre of a slope-up tile is its lowest point (-0.29 m at 16 degrees): the reset raised a
+    # robot onto higher ground but never lowered it, so it fell 25 cm and landed pitched 25 degrees
+    plant = S.make_plant(robot, tiles_config, "tiles:slope_up:7", 0.02, seed=0, randomize=False, pushes=False)
+    spec, kind, level = S.tile_terrain("tiles:slope_up:7", tiles_config)
+    xy = tile_center(spec, spec.types.index(kind), level)
+    assert plant.ground_height(xy) < -0.25
+    plant.reset(tuple(xy), 0.8)
+    truth = plant.truth()  # the base is 0.2 m over its feet, which stand on the faces around the pit
+    assert np.all(plant.foot_forces() > 1.0) and np.degrees(np.abs(truth["rpy"][:2])).max() < 6.0, truth
+    assert 0.2 < truth["height"] < 0.2 + 0.15 * math.tan(math.radians(16)) + 0.02
+
+
 def test_tiles_policy_walks_up_its_tile_and_the_distance_is_mujocos(robot, exported, tiles_config, tmp_path):
     """Up 2.8 cm stairs in MuJoCo C through the deploy loop: the run starts within 2 cm of the
     tile's centre, on the ground (feet above it, base clear of it); the distance it counts (the
@@ -127,7 +140,10 @@ def test_tiles_policy_walks_up_its_tile_and_the_distance_is_mujocos(robot, expor
         p[2] - plant.m.geom_size[g][0] - plant.ground_height(p[:2])
         for p, g in zip(feet, plant.feet, strict=True)
     ]
-    assert min(gaps) > -0.003 and plant.truth()["clearance"] > 0.02  # standing on its tile, not in it
+    # standing on its tile after the settle: three feet or four bear weight (stairs are not a plane),
+    # none below the ground under its centre (on a tread's edge the sphere rests above the ray's height)
+    assert np.sum(plant.foot_forces() > 1.0) >= 3 and min(gaps) > -0.003, (plant.foot_forces(), gaps)
+    assert plant.truth()["clearance"] > 0.02 and abs(plant.truth()["rpy"][1]) < 0.1
 
     job = S.suite_jobs([("tiles", exported)], terrains=(terrain,), which=S.TILE, seconds=3.0, seeds=(3,),
                        out_dir=tmp_path)[0]  # fmt: skip
