@@ -325,11 +325,15 @@ def test_replayed_sensors_give_the_motor_targets_the_simulator_applied(replay):
 
 
 @pytest.mark.slow
-def test_control_step_is_well_under_a_millisecond(replay):
+def test_control_step_fits_well_inside_the_control_period(replay):
     timing = deploy.bench(replay["onnx"], n_steps=500)
     print(f"control step on this CPU: {timing}")
-    # measured 0.38 ms median on the 2-core CPU while other jobs loaded it (load average 7-8)
-    assert timing["median_ms"] < 1.0
+    # A guard against an order-of-magnitude regression (a per-step compile, an import in the loop),
+    # not a benchmark: the median must stay under a quarter of the 20 ms tick. Measured 0.26-0.38 ms
+    # on the 2-core CPU in earlier weeks and 0.47-0.85 ms on 2026-11-26 for today's code and that of
+    # 863b6c8 alike (the machine's speed varies; 1.08 ms under the test suite's load): a 1 ms bound
+    # failed on timing noise.
+    assert timing["median_ms"] < 5.0  # [ms]: a quarter of ctrl_dt = 20 ms
 
 
 # --- loading a policy file, and the deploy command's bad inputs -----------------------------------
