@@ -283,11 +283,33 @@ def test_eval_cli_bad_input_is_one_line_and_exit_2(tmp_path):
         (["--run", str(ROOT / "results/tiles_h100")], "not getup"),
         (["--run", str(ROOT / "results/getup_h100"), "--ground", "mud"], "--ground mud"),
         (["--run", str(ROOT / "results/getup_h100"), "--drops", "0"], "--drops 0"),
+        (
+            ["--run", str(ROOT / "results/getup_h100"), "--servo-speed-limit", "fast"],
+            "--servo-speed-limit fast",
+        ),
     ]
     for argv, words in cases:
         res = subprocess.run([sys.executable, str(ROOT / "eval/getup.py"), *argv], capture_output=True, text=True, cwd=ROOT)  # fmt: skip
         assert res.returncode == 2, res.stderr
         assert res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
+
+
+def test_eval_servo_speed_limit_option_sets_the_physics_key():
+    """--servo-speed-limit on/off sets env.getup.servo_speed_limit of the run's config (which the
+    environment's substep reads, see test_servo_speed_limit_is_sim2sims_servo_model); trained keeps it."""
+    from quadson_mjx.cli.getup_eval import with_servo_speed_limit
+    from quadson_mjx.training import load_run_config
+
+    env_cfg, _ = load_run_config(ROOT / "results/getup_mirror_ft_h200")
+    assert env_cfg.getup.servo_speed_limit is False
+    assert with_servo_speed_limit(env_cfg, "on").getup.servo_speed_limit is True
+    assert with_servo_speed_limit(env_cfg, "off").getup.servo_speed_limit is False
+    assert with_servo_speed_limit(env_cfg, "trained") is env_cfg
+    # the committed fine-tune with the limit (its config only, no checkpoint)
+    servo_run = json.loads(
+        (ROOT / "results/getup_mirror_ft_h200/servo_limit_h200/run_config.json").read_text()
+    )
+    assert servo_run["env"]["getup"]["servo_speed_limit"] is True
 
 
 def test_committed_policy_evaluates_on_the_cpu():

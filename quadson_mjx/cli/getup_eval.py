@@ -9,7 +9,8 @@ within 2 cm of the standing height, held 1 s, begun within 5 s of the drop. Prin
 start class and ground; --topples N adds N knock-overs from the home stance (a tipping rate about
 a random horizontal axis, the run's env.getup.topple_rate_rps) as a row "toppled". The column
 on_back counts the failures that end the episode on the back (tilted over 150 deg), the start the
-legs cannot turn over. --json writes them with the command line.
+legs cannot turn over. --servo-speed-limit on/off evaluates with or without the servos' torque-speed
+limit in the physics, whatever the run trained with. --json writes them with the command line.
 """
 
 from __future__ import annotations
@@ -19,10 +20,12 @@ import json
 import sys
 from pathlib import Path
 
+from quadson_mjx.config import apply_overrides
 from quadson_mjx.errors import UsageError, check_run_dir, check_writable, one_line_errors, write_text_atomic
 from quadson_mjx.robots.quadson.mirror import parse_mirror_to, resolve_mirror_to, trained_mirror_to
 
 GROUND_NAMES = ("flat", "stones")
+SERVO_SPEED_LIMIT = {"trained": None, "on": "true", "off": "false"}  # --servo-speed-limit -> the config value
 
 
 def parse(argv):
@@ -39,9 +42,25 @@ def parse(argv):
         help="left or right: run the policy mirrored where a start has the other side lower; none; "
         "trained (default): as the run was trained (env.getup.mirror_to)",
     )
+    p.add_argument(
+        "--servo-speed-limit",
+        default="trained",
+        help="on or off: the servos' torque-speed limit in the physics (env.getup.servo_speed_limit); "
+        "trained (default): as the run was trained",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None)
     return p.parse_args(argv)
+
+
+def with_servo_speed_limit(env_cfg, choice: str):
+    """The run's env config with env.getup.servo_speed_limit as --servo-speed-limit chooses it
+    ("trained": as it is)."""
+    if choice not in SERVO_SPEED_LIMIT:
+        raise UsageError(f"--servo-speed-limit {choice}: choose from {', '.join(SERVO_SPEED_LIMIT)}")
+    if SERVO_SPEED_LIMIT[choice] is None:
+        return env_cfg
+    return apply_overrides(env_cfg, [f"getup.servo_speed_limit={SERVO_SPEED_LIMIT[choice]}"], prefix="env.")
 
 
 def _line(name: str, r: dict) -> str:
@@ -69,6 +88,8 @@ def main(argv=None) -> int:
         raise UsageError(str(e)) from None
     if args.topples < 0:
         raise UsageError(f"--topples {args.topples}: 0 or more")
+    if args.servo_speed_limit not in SERVO_SPEED_LIMIT:  # refused before the run loads (seconds)
+        with_servo_speed_limit(None, args.servo_speed_limit)
     if args.json:
         check_writable(args.json, "--json")
     from quadson_mjx.training import load_policy, load_run_config
@@ -85,6 +106,7 @@ def main(argv=None) -> int:
     from quadson_mjx.getup_eval import evaluate_getup
 
     policy, env_cfg, _, _ = load_policy(Path(args.run))
+    env_cfg = with_servo_speed_limit(env_cfg, args.servo_speed_limit)
     out = {"argv": argv, "grounds": {}}
     for ground in args.ground:
         rows, total = evaluate_getup(env_cfg, policy, ground, args.drops, args.seed, mirror_to=mirror_to)
