@@ -38,6 +38,7 @@ from quadson_mjx.deploy_supervisor import Mode, Supervisor, tilt
 from quadson_mjx.quat import quat_rotate
 from quadson_mjx.robots import get_robot
 from quadson_mjx.robots.quadson.mirror import TRAINED
+from quadson_mjx.stats import success_interval
 
 FORWARD_COMMAND = (0.25, 0.0, 0.0)  # vx [m/s], vy [m/s], yaw rate [rad/s] while walking
 KICK_SPEED_MPS = (0.2, 0.6)  # horizontal base speed added by the kick, uniform [m/s]
@@ -312,16 +313,13 @@ def summarize(rows) -> dict:
     """Trial rows -> success rate (with a 95 % Wilson interval), detected falls, median times [s]."""
     n = len(rows)
     wins = sum(r["success"] for r in rows)
-    z, p = 1.96, wins / n
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    mid = (p + z * z / (2 * n)) / (1 + z * z / n)
     med = lambda key: float(np.median(v)) if (v := [r[key] for r in rows if r[key] is not None]) else None  # noqa: E731
     back = [r for r in rows if (r["tilt_at_getup_deg"] or 0.0) > 150.0]
     return {
         "trials": n,
         "successes": wins,
-        "success_rate": p,
-        "success_rate_95": [mid - half, mid + half],
+        "success_rate": wins / n,
+        "success_rate_95": success_interval(wins, n),
         "detected": sum(r["detected"] for r in rows),
         "kicks": sum(len(r["kicks"]) for r in rows),
         "fell_before_kick": sum(r["fell_before_kick"] for r in rows),

@@ -23,6 +23,7 @@ import numpy as np
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.stats import success_interval
 from quadson_mjx.wrappers import SUCCESS_SHARE, wrap_for_evaluation
 
 SETTLE_S = 1.0  # the first second of a trial is left out of the RMS
@@ -96,6 +97,7 @@ def evaluate_tiles(
                     "robots": int(i.sum()),
                     "falls": int(fell[i].sum()),
                     "success": float(success[i].mean()),
+                    "success_95": success_interval(int(success[i].sum()), int(i.sum())),
                     "distance_share": float(np.mean(progress[i]) / commanded) if commanded > 0 else 1.0,
                     "rms_vx": float(rms[0]),
                     "rms_vy": float(rms[1]),

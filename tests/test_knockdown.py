@@ -17,6 +17,7 @@ import pytest
 from quadson_mjx import knockdown as K
 from quadson_mjx.cli import knockdown as cli
 from quadson_mjx.deploy_supervisor import Mode
+from quadson_mjx.stats import success_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 WALK, GETUP = ROOT / "results/policy_h100_sensors", ROOT / "results/getup_topple_h100"
@@ -146,6 +147,8 @@ def test_cli_writes_json_and_an_mcap_of_the_first_trial(exported, tmp_path, caps
     assert [t["trial"] for t in res["trials"]] == [0, 1] and res["summary"]["trials"] == 2
     assert res["summary"]["detected"] == sum(t["detected"] for t in res["trials"])
     assert res["summary"]["bad_target_ticks"] == 0 and res["settings"]["seconds_per_trial"] == 1.0
+    wins = sum(t["success"] for t in res["trials"])
+    assert res["summary"]["success_rate_95"] == success_interval(wins, 2)
     assert res["settings"]["supervisor"]["fall_tilt_rad"] == pytest.approx(math.radians(25.0))
     printed = capsys.readouterr().out
     assert "success 0/2" in printed  # 1 s after the last kick cannot include 2 s walking

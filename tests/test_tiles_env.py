@@ -233,6 +233,7 @@ def test_tiles_evaluation_of_the_gait_alone():
     one row per tile with its robots; standing asks for no distance, so every robot that did not
     fall succeeds; the gait stepping in place tracks vx = 0 within 0.1 m/s. Bad requests refused."""
     from quadson_mjx import tiles_eval
+    from quadson_mjx.stats import success_interval
 
     env_cfg = _config()
     act = LocomotionEnv(env_cfg).action_size
@@ -250,6 +251,10 @@ def test_tiles_evaluation_of_the_gait_alone():
     for r in rows:
         assert r["success"] == 1.0 - r["falls"] / r["robots"]
         assert r["distance_share"] == 1.0
+        lo, hi = r["success_95"]  # its 95 % interval, of the same counts (tests/test_stats.py)
+        assert lo <= r["success"] <= hi and r["success_95"] == success_interval(
+            r["robots"] - r["falls"], r["robots"]
+        )
     assert rows[0]["falls"] == 0 and rows[0]["rms_vx"] < 0.1
     with pytest.raises(ValueError, match="lava"):
         tiles_eval.evaluate_tiles(env_cfg, policy, [0], 1, 1.5, types=["lava"])
