@@ -30,6 +30,7 @@ from quadson_mjx.robots.quadson.mirror import (
     wants_mirror,
 )
 from quadson_mjx.sensors import gravity_direction
+from quadson_mjx.stats import success_interval
 from quadson_mjx.wrappers import wrap_for_evaluation
 
 ON_BACK_TILT_RAD = math.radians(150.0)  # an episode that ends tilted further lies on its back
@@ -145,6 +146,7 @@ def evaluate_getup(
             "drops": int(i.sum()),
             "successes": int((i & success).sum()),
             "success": float(success[i].mean()) if i.any() else float("nan"),
+            "success_95": success_interval(int((i & success).sum()), int(i.sum())) if i.any() else None,
             "time_to_stand_mean_s": float(times.mean()) if times.size else float("nan"),
             "time_to_stand_median_s": float(np.median(times)) if times.size else float("nan"),
             "time_to_stand_p90_s": float(np.percentile(times, 90)) if times.size else float("nan"),

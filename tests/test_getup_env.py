@@ -325,6 +325,15 @@ def test_committed_policy_evaluates_on_the_cpu():
     assert total["non_finite_resets"] == 0 and 0 <= total["successes"] <= 4
     assert 0 <= total["failures_on_back"] <= 4 - total["successes"]
     assert total["failures_on_back"] == sum(r["failures_on_back"] for r in rows)
+    from quadson_mjx.stats import success_interval  # tested against published intervals
+
+    assert total["success_95"] == success_interval(total["successes"], 4)
+    for r in rows:  # a class without a drop has no interval
+        assert (
+            r["success_95"] is None
+            if r["drops"] == 0
+            else r["success_95"][0] <= r["success"] <= r["success_95"][1]
+        )
     # the breakdown by the tilt at the drop covers every drop once, in the bins it names
     from quadson_mjx.getup_eval import START_TILT_BINS_DEG
 
