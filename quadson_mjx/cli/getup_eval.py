@@ -54,14 +54,19 @@ def parse(argv):
     return p.parse_args(argv)
 
 
+def servo_speed_limit_overrides(choice: str) -> list[str]:
+    """--servo-speed-limit's env config overrides ([] for "trained"); an unknown choice is a usage error."""
+    if choice not in SERVO_SPEED_LIMIT:
+        raise UsageError(f"--servo-speed-limit {choice}: choose from {', '.join(SERVO_SPEED_LIMIT)}")
+    value = SERVO_SPEED_LIMIT[choice]
+    return [] if value is None else [f"getup.servo_speed_limit={value}"]
+
+
 def with_servo_speed_limit(env_cfg, choice: str):
     """The run's env config with env.getup.servo_speed_limit as --servo-speed-limit chooses it
     ("trained": as it is)."""
-    if choice not in SERVO_SPEED_LIMIT:
-        raise UsageError(f"--servo-speed-limit {choice}: choose from {', '.join(SERVO_SPEED_LIMIT)}")
-    if SERVO_SPEED_LIMIT[choice] is None:
-        return env_cfg
-    return apply_overrides(env_cfg, [f"getup.servo_speed_limit={SERVO_SPEED_LIMIT[choice]}"], prefix="env.")
+    over = servo_speed_limit_overrides(choice)
+    return apply_overrides(env_cfg, over, prefix="env.") if over else env_cfg
 
 
 def _line(name: str, r: dict) -> str:
@@ -89,8 +94,7 @@ def main(argv=None) -> int:
         raise UsageError(str(e)) from None
     if args.topples < 0:
         raise UsageError(f"--topples {args.topples}: 0 or more")
-    if args.servo_speed_limit not in SERVO_SPEED_LIMIT:  # refused before the run loads (seconds)
-        with_servo_speed_limit(None, args.servo_speed_limit)
+    servo_speed_limit_overrides(args.servo_speed_limit)  # refused before the run loads (seconds)
     if args.json:
         check_writable(args.json, "--json")
     from quadson_mjx.training import load_policy, load_run_config
