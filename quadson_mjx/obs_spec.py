@@ -174,6 +174,11 @@ def lagged(name: str, lag: int) -> str:
     return name if lag == 0 else f"{name}@-{lag}"
 
 
+def unlagged(name: str) -> str:
+    """The entry that `name` is an earlier tick of ("gyro@-2" -> "gyro"); a current entry's own name."""
+    return name.split("@-", 1)[0]
+
+
 def sensor_observation(
     legs: Sequence[str],
     motor_joints: Sequence[str],

@@ -61,6 +61,7 @@ from quadson_mjx.training.runs import (
     resume_point,
     run_dir_lock,
 )
+from quadson_mjx.training.widen import init_params_for
 
 
 def train(
@@ -91,7 +92,9 @@ def train(
     observation normaliser (newest intact checkpoint of a directory) start this run instead of the
     seed's random ones, for fine-tuning a trained policy under changed configs; the optimiser's
     moments and the step count start afresh. Its networks must match this run's (the observation
-    and action sizes, ppo.policy_hidden and the like): a ValueError names the mismatch. The source,
+    and action sizes, ppo.policy_hidden and the like): a ValueError names the mismatch; the one
+    exception is a longer env.obs_history than the source's, whose earlier ticks the networks read
+    with zero weights (training/widen.py; "widened_from_obs_history" in the record). The source,
     its step and the checkpoint's SHA-256 are kept in config.json ("init_from", kept on resume) and
     in the log's start event, and the step-0 checkpoint is the source's parameters.
 
@@ -222,9 +225,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         guards.check_memory(env, ppo_cfg.num_envs, local_devices_to_use(ppo_cfg))
         if init_from is not None:  # before anything is written: a mismatch leaves no run behind
             try:
-                init_params = load_checkpoint(init_ckpt, env.observation_size, env.action_size, ppo_cfg)
+                init_params, history_from = init_params_for(init_ckpt, source, env, env_cfg, ppo_cfg)
             except ValueError as e:
                 raise ValueError(f"init_from {init_ckpt} does not fit this run's networks: {e}") from None
+            if history_from is not None:
+                origin["widened_from_obs_history"] = history_from
     except BaseException:
         if created:
             _remove_if_unused(run_dir)
@@ -251,6 +256,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         restored = (
             f"the parameters and normaliser of {init_ckpt} (step {init_step:,}); the optimiser starts afresh"
         )
+        if "widened_from_obs_history" in origin:
+            restored += (
+                f"; its obs_history {origin['widened_from_obs_history']} widened to {env_cfg.obs_history} "
+                "(earlier ticks read with zero weights)"
+            )
         print(f"init from {init_ckpt}: {restored}", file=stream)
     devices = local_devices_to_use(ppo_cfg)
     if jax.process_count() > 1:  # every process its rows of the single-process run's keys

@@ -1,0 +1,122 @@
+"""--init-from into a longer observation history (training/widen.py): the widened networks compute
+what the source's did, the normaliser's statistics of an earlier tick are its current tick's, and
+every other change of the observation is refused."""
+
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from brax.training.agents.ppo import networks as ppo_networks
+
+from quadson_mjx import obs_spec, training
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.envs import make_env
+from quadson_mjx.training.widen import init_params_for, row_sources, widen_params
+
+ROOT = Path(__file__).resolve().parents[1]
+SOURCE = ROOT / "results" / "tiles_swing_h200"  # a committed run: obs_history 1, asymmetric critic
+
+
+@pytest.fixture(scope="module")
+def widened():
+    """The committed tiles policy's final checkpoint widened into a run of obs_history 3."""
+    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
+    src_env = make_env(src_cfg)
+    env_cfg = apply_overrides(src_cfg, ["obs_history=3"])
+    env = make_env(env_cfg)
+    ckpt, _ = training.latest_checkpoint(SOURCE)
+    params, history_from = init_params_for(ckpt, SOURCE, env, env_cfg, ppo_cfg)
+    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
+    return src_env, env, ppo_cfg, source, params, history_from
+
+
+def _observations(src_env, env, rng):
+    """A batch of the source's observations (random values), and this run's: the same entries
+    with random values in the earlier ticks."""
+    old, new = {}, {}
+    for key, s_old, s_new in (
+        ("state", src_env.obs_spec, env.obs_spec),
+        ("privileged_state", src_env.critic_spec, env.critic_spec),
+    ):
+        x_old = rng.normal(size=(16, s_old.size)).astype(np.float32)
+        x_new = rng.normal(size=(16, s_new.size)).astype(np.float32)
+        for name, rows in s_new.slices().items():
+            if name in s_old.slices():
+                x_new[:, rows] = x_old[:, s_old.slices()[name]]
+        old[key], new[key] = x_old, x_new
+    return old, new
+
+
+def test_widened_networks_compute_what_the_source_did(widened):
+    src_env, env, ppo_cfg, source, params, history_from = widened
+    assert history_from == 1
+    assert env.obs_spec.size == src_env.obs_spec.size + 2 * 42  # two earlier ticks of 3 + 3 + 12 + 12 + 12
+    old_obs, new_obs = _observations(src_env, env, np.random.default_rng(0))
+    nets_old = training.make_networks(src_env.observation_size, src_env.action_size, ppo_cfg)
+    nets_new = training.make_networks(env.observation_size, env.action_size, ppo_cfg)
+    act_old = jax.jit(ppo_networks.make_inference_fn(nets_old)(source, deterministic=True))
+    act_new = jax.jit(ppo_networks.make_inference_fn(nets_new)(params, deterministic=True))
+    key = jax.random.PRNGKey(0)
+    a_old, a_new = act_old(old_obs, key)[0], act_new(new_obs, key)[0]
+    np.testing.assert_allclose(np.asarray(a_new), np.asarray(a_old), rtol=0, atol=1e-6)
+    v_old = nets_old.value_network.apply(source[0], source[2], old_obs)
+    v_new = nets_new.value_network.apply(params[0], params[2], new_obs)
+    np.testing.assert_allclose(np.asarray(v_new), np.asarray(v_old), rtol=1e-6, atol=1e-5)
+    # and the earlier ticks do reach the networks once their weights move: not a dead input
+    moved = jax.tree.map(lambda x: x, params)
+    kernel = np.array(moved[1]["params"]["hidden_0"]["kernel"])
+    kernel[env.obs_spec.slices()["gyro@-2"]] = 0.1
+    moved[1]["params"]["hidden_0"]["kernel"] = kernel
+    a_moved = ppo_networks.make_inference_fn(nets_new)(moved, deterministic=True)(new_obs, key)[0]
+    assert float(np.max(np.abs(np.asarray(a_moved) - np.asarray(a_new)))) > 1e-3
+
+
+def test_earlier_ticks_take_their_current_ticks_statistics(widened):
+    src_env, env, _, source, params, _ = widened
+    for key, s_old, s_new in (
+        ("state", src_env.obs_spec, env.obs_spec),
+        ("privileged_state", src_env.critic_spec, env.critic_spec),
+    ):
+        for field in ("mean", "std", "summed_variance"):
+            old, new = np.asarray(getattr(source[0], field)[key]), np.asarray(getattr(params[0], field)[key])
+            for name, rows in s_new.slices().items():
+                want = old[s_old.slices()[obs_spec.unlagged(name)]]
+                np.testing.assert_array_equal(new[rows], want, err_msg=f"{key} {field} {name}")
+        kernel = np.asarray(params[1 if key == "state" else 2]["params"]["hidden_0"]["kernel"])
+        for name, rows in s_new.slices().items():
+            if "@-" in name:
+                assert not np.any(kernel[rows]), name
+    assert jax.tree.all(jax.tree.map(np.array_equal, params[0].count, source[0].count))
+    assert jax.tree.structure(params) == jax.tree.structure(
+        training.params_template(env.observation_size, env.action_size, widened[2])
+    )
+
+
+def _spec(history=1, yaw_error=False):
+    return obs_spec.sensor_observation(("fl", "fr"), ("m0", "m1"), 4, history, True, yaw_error)
+
+
+def test_only_earlier_ticks_can_be_added():
+    sources = row_sources(_spec(1), _spec(3))
+    assert [own for _, own in sources].count(False) == 10  # 2 ticks x 5 history entries
+    with pytest.raises(ValueError, match="observes yaw_error, which the source did not"):
+        row_sources(_spec(1), _spec(1, yaw_error=True))
+    with pytest.raises(ValueError, match="lacks the source's gravity@-1"):
+        row_sources(_spec(2), _spec(1))
+    resized = obs_spec.sensor_observation(("fl", "fr"), ("m0", "m1", "m2"), 4, 3, True)
+    with pytest.raises(ValueError, match="entry motor_pos has 3 values here, 2 in the source"):
+        row_sources(_spec(1), resized)
+    with pytest.raises(ValueError, match="dictionary observation"):
+        widen_params(None, {"state": _spec(1)}, {"state": _spec(3)}, None)
+
+
+def test_train_refuses_another_observation_and_leaves_no_run(tmp_path):
+    """Through train(): an observation the source's cannot be widened into (a longer history, and a
+    yaw-error entry besides) is one ValueError naming the checkpoint, before the run directory is
+    made."""
+    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
+    env_cfg = apply_overrides(src_cfg, ["yaw_error_tau_s=0.5", "obs_history=2"])
+    with pytest.raises(ValueError, match=r"does not fit this run's networks: .*observes yaw_error"):
+        training.train(env_cfg, ppo_cfg, tmp_path / "child", init_from=SOURCE)
+    assert not (tmp_path / "child").exists()
