@@ -18,14 +18,25 @@ Rows: the sensor-only policy (results/policy_h100_sensors) and the true-state po
 (results/policy_h100_joystick) on flat ground and on the stones, each in its run's randomized
 models with pushes (as quadson_mjx.cli.policy_eval evaluates them, the same draws); then both and
 the open-loop trot (zero foot offsets, in the sensor run's env) on flat ground with the nominal
-model and no pushes (sensor noise kept), and the sensor-only policy there with ideal sensors (no
-noise, bias, IMU tilt, quantisation or latency). Each row: the 75 commands of
+model and no pushes (randomize=false: no sensor noise, bias, IMU tilt or latency either; encoder
+quantisation kept), and the sensor-only policy there with ideal sensors (quantisation off as well:
+the only difference from the row before it). Each row: the 75 commands of
 quadson_mjx.commands.sweep_commands, one environment each, 20 s, seed 0.
 
     python results/policy_eval/yaw_rate_parts.py results/policy_eval/yaw_rate_parts.json \
         > results/policy_eval/yaw_rate_parts.log
 
 (A third argument N and a fourth S run only the first N commands for S seconds: a quick check.)
+
+    python results/policy_eval/yaw_rate_parts.py OUT.json --runs RUN [RUN ...]
+
+gives the same split for the policies of other runs, three rows each: flat and stones as evaluated,
+and flat ground with the nominal model and no pushes;
+
+    python results/policy_eval/yaw_rate_parts.py OUT.json --factors RUN
+
+one policy on the stones and on flat ground as evaluated and under one disturbance at a time
+(FACTORS: none, the pushes, the sensor errors, the randomized model with the sensor errors).
 """
 
 import json
@@ -45,7 +56,22 @@ from quadson_mjx.policy_eval import SETTLE_S
 from quadson_mjx.training import load_policy
 
 SECONDS = 20.0
-NOMINAL = ["randomize=false", "pushes=false"]  # the nominal model, no pushes (sensor noise kept)
+# the nominal model, no pushes; randomize=false also turns the sensor errors off (noise, gyro bias,
+# IMU tilt, latency); the encoders' quantisation stays
+NOMINAL = ["randomize=false", "pushes=false"]
+NOMINAL_MODEL = [  # randomize=true with every model range at its nominal value: the sensor errors only
+    "randomization.friction=1.0,1.0",
+    "randomization.mass_scale=1.0,1.0",
+    "randomization.motor_strength=1.0,1.0",
+    "randomization.base_com_shift_m=0.0,0.0",
+    "randomization.latency_s=0.0,0.0",
+]
+FACTORS = [  # (the ground's label suffix, overrides): one disturbance at a time, then all but the pushes
+    (", nominal, no pushes", NOMINAL),
+    (", pushes only", ["randomize=false", "pushes=true"]),
+    (", sensor errors only", ["randomize=true", "pushes=false", *NOMINAL_MODEL]),
+    (", randomized model and sensors, no pushes", ["randomize=true", "pushes=false"]),
+]
 IDEAL_SENSORS = [  # the sensor-only actor's IMU and encoders without noise, bias, tilt or latency
     "sensor.gravity_noise=0",
     "sensor.gyro_noise_rps=0",
@@ -93,12 +119,30 @@ def parts(err: np.ndarray, keep: np.ndarray, steps_per_cycle: int, first_kept: i
     return np.sqrt(sq / max(count, 1))
 
 
-def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS) -> None:
+def run_rows(runs: list[str]) -> list[tuple]:
+    """ROWS' three policy rows (flat, stones, flat nominal without pushes) for each run in `runs`."""
+    return [
+        (Path(run).name, run, "policy", terrain, overrides)
+        for run in runs
+        for terrain, overrides in (("flat", []), ("rough", []), ("flat", NOMINAL))
+    ]
+
+
+def factor_rows(run: str) -> list[tuple]:
+    """The policy of `run` on the stones and on flat ground as evaluated, then under each of FACTORS."""
+    return [
+        (Path(run).name, run, "policy", terrain, overrides)
+        for terrain in ("rough", "flat")
+        for overrides in [[], *(o for _, o in FACTORS)]
+    ]
+
+
+def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS, rows=ROWS) -> None:
     commands = sweep_commands().astype(np.float32)[:n_commands]
     out = []
     print("| controller | ground | yaw-rate error RMS [rad/s] | phase-locked | cycle mean | rest | falls |")
     print("|---|---|---|---|---|---|---|")
-    for label, run, kind, terrain, overrides in ROWS:
+    for label, run, kind, terrain, overrides in rows:
         policy, env_cfg, _, _ = load_policy(Path(run))
         cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
         env = LocomotionEnv(cfg)
@@ -140,7 +184,8 @@ def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS) -> None
             "wall_s": round(time.monotonic() - t0, 1),
         }
         out.append(row)
-        ground = ("stones" if terrain == "rough" else "flat") + (", nominal, no pushes" if overrides else "")
+        ground = "stones" if terrain == "rough" else "flat"
+        ground += next((label for label, o in FACTORS if o == overrides[: len(o)] and overrides), "")
         ground += ", ideal sensors" if IDEAL_SENSORS[0] in overrides else ""
         print(
             f"| {label} | {ground} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} | {rms[3]:.3f} "
@@ -152,4 +197,9 @@ def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS) -> None
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], *(int(sys.argv[2]), float(sys.argv[3])) if len(sys.argv) > 3 else ())
+    if len(sys.argv) > 2 and sys.argv[2] == "--factors":
+        main(sys.argv[1], rows=factor_rows(sys.argv[3]))
+    elif len(sys.argv) > 2 and sys.argv[2] == "--runs":
+        main(sys.argv[1], rows=run_rows(sys.argv[3:]))
+    else:
+        main(sys.argv[1], *(int(sys.argv[2]), float(sys.argv[3])) if len(sys.argv) > 3 else ())
