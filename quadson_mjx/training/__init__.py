@@ -1,7 +1,8 @@
 """Brax PPO training of foot-offset policies (the run directory it writes: loop.py). Modules by reason
 to change: presets (PPO hyperparameters), networks, checkpoints (files under run_dir/checkpoints),
 runs (a run directory's configs, lock, resume point, log, policy), monitor (progress, XLA
-compilations, signals), guards (divergence, memory, backend), loop (`train`). This face only
+compilations, signals), guards (divergence, memory, backend), widen (a checkpoint into a longer
+observation history, for --init-from), loop (`train`). This face only
 re-exports them: `training.train(...)`, `training.ppo_config(...)`."""
 
 # ruff: noqa: F401 (every import here is a re-export)
