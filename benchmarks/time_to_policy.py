@@ -9,7 +9,9 @@ Everything after `--` goes to the train command (`quadson-train`, run as `python
 quadson_mjx.cli.train`). The clock starts before the training process is launched (imports, compilation and evaluations included) and the evaluation times are the
 log times of `/train/metrics` in the run's train.mcap. `--compile-cache DIR` is passed through,
 so two invocations with the same DIR measure a first and a second run. Results are appended to
---out (JSON list), so one file collects the configurations of one session.
+--out (JSON list), so one file collects the configurations of one session. `--keep-run DIR` trains
+into DIR (a new directory) and keeps it, with its log beside it as DIR.log: the timed run's policy
+can then be evaluated like any other (docs/results.md, "The main job").
 """
 
 from __future__ import annotations
@@ -56,12 +58,21 @@ def main(argv=None) -> int:
     p.add_argument("--target-speed", type=float, default=0.45, help="m/s")
     p.add_argument("--out", default=None, help="JSON list to append the result to")
     p.add_argument("--log", default=None, help="file for the training process's output")
+    p.add_argument(
+        "--keep-run",
+        default=None,
+        help="run directory to train into and keep (its checkpoint for an evaluation); must not exist",
+    )
     args = p.parse_args(own)
 
-    run_dir = Path(tempfile.mkdtemp(prefix="time_to_policy_")) / "run"
+    if args.keep_run is not None and Path(args.keep_run).exists():
+        p.error(f"--keep-run {args.keep_run} exists: give a new directory")
+    run_dir = Path(args.keep_run or Path(tempfile.mkdtemp(prefix="time_to_policy_")) / "run")
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "quadson_mjx.cli.train", "--run-dir", str(run_dir), *train_args]
     t0_ns = time.time_ns()
-    with open(args.log or run_dir.parent / "train.log", "w") as log:
+    log_path = args.log or (f"{run_dir}.log" if args.keep_run else run_dir.parent / "train.log")
+    with open(log_path, "w") as log:
         rc = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
     total_s = (time.time_ns() - t0_ns) / 1e9
     evals = evaluations(run_dir) if (run_dir / "train.mcap").exists() else []
