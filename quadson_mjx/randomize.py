@@ -10,6 +10,29 @@ from __future__ import annotations
 import jax
 from mujoco import mjx
 
+# the sliding friction of the models' contact geoms and floors (models/*/*.xml; seed 000's 0.8):
+# randomization.friction sets every geom's friction, so a range that leaves the model as it is
+# holds this value, not 1.0
+NOMINAL_FRICTION = 0.8
+# each randomization range at the value that leaves the model unchanged
+NOMINAL_RANGES = {
+    "friction": (NOMINAL_FRICTION, NOMINAL_FRICTION),
+    "mass_scale": (1.0, 1.0),
+    "motor_strength": (1.0, 1.0),
+    "latency_s": (0.0, 0.0),
+    "base_com_shift_m": (0.0, 0.0),
+}
+
+
+def nominal_range_overrides(keep: tuple[str, ...] = ()) -> list[str]:
+    """env config overrides ("randomization.mass_scale=1.0,1.0", ..., no "env." prefix) that pin
+    every randomization range but those named in `keep` at NOMINAL_RANGES: with randomize=true an
+    episode then draws its sensor errors (and the kept ranges) on the nominal model."""
+    unknown = set(keep) - set(NOMINAL_RANGES)
+    if unknown:
+        raise ValueError(f"no randomization range {sorted(unknown)}; choose from {sorted(NOMINAL_RANGES)}")
+    return [f"randomization.{k}={lo},{hi}" for k, (lo, hi) in NOMINAL_RANGES.items() if k not in keep]
+
 
 def randomize(model: mjx.Model, rng: jax.Array, ranges, base_body: int = 1) -> tuple[mjx.Model, mjx.Model]:
     """model: mjx.Model; rng: (B, 2) keys; ranges: the env config's `randomization` block.

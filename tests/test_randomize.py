@@ -6,10 +6,11 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
-from quadson_mjx.randomize import randomization_fn, randomize
+from quadson_mjx.randomize import nominal_range_overrides, randomization_fn, randomize
 from quadson_mjx.wrappers import wrap_for_training
 
 
@@ -51,3 +52,40 @@ def test_training_wrappers_step_randomized_models():
         state = step(state, jnp.zeros((2, 12)))
     q = np.asarray(state.pipeline_state.qpos)
     assert np.all(np.isfinite(q)) and not np.allclose(q[0], q[1])
+
+
+@pytest.mark.parametrize("robot", ["quadson", "caramel"])
+def test_nominal_ranges_leave_the_model_as_its_mjcf_has_it(robot):
+    """The pinned ranges ("the sensor errors only" rows of the results scripts) draw the model as
+    the MJCF defines it: every contact geom's friction (the MJCF's 0.8), masses, servo gains and
+    force ranges, the base's centre of mass; not the 1.0 friction MuJoCo defaults to."""
+    from quadson_mjx.config import apply_overrides
+
+    cfg = apply_overrides(env_config(randomize=True, robot=robot), nominal_range_overrides())
+    env = LocomotionEnv(cfg)
+    mj = env._mj_model  # the MJCF as compiled by MuJoCo C
+    model, _ = randomize(
+        env.sys, jax.random.split(jax.random.PRNGKey(1), 4), cfg.randomization, env.base_body
+    )
+    contact = (mj.geom_contype > 0) | (mj.geom_conaffinity > 0)
+    assert contact.any()
+    for b in range(4):
+        np.testing.assert_allclose(
+            np.asarray(model.geom_friction[b, contact, 0]), mj.geom_friction[contact, 0], rtol=1e-6
+        )
+        np.testing.assert_allclose(np.asarray(model.body_mass[b]), mj.body_mass, rtol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(model.actuator_gainprm[b, :, 0]), mj.actuator_gainprm[:, 0], rtol=1e-6
+        )
+        np.testing.assert_allclose(
+            np.asarray(model.actuator_forcerange[b]), mj.actuator_forcerange, rtol=1e-6
+        )
+        np.testing.assert_allclose(np.asarray(model.body_ipos[b]), mj.body_ipos, atol=1e-7)
+    assert cfg.randomization.latency_s == (0.0, 0.0)
+
+
+def test_nominal_range_overrides_keep_the_named_range():
+    kept = nominal_range_overrides(keep=("friction",))
+    assert not any(o.startswith("randomization.friction=") for o in kept) and len(kept) == 4
+    with pytest.raises(ValueError, match="no randomization range"):
+        nominal_range_overrides(keep=("fricton",))

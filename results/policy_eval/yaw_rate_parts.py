@@ -53,23 +53,17 @@ from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
 from quadson_mjx.policy_eval import SETTLE_S
+from quadson_mjx.randomize import nominal_range_overrides
 from quadson_mjx.training import load_policy
 
 SECONDS = 20.0
 # the nominal model, no pushes; randomize=false also turns the sensor errors off (noise, gyro bias,
 # IMU tilt, latency); the encoders' quantisation stays
 NOMINAL = ["randomize=false", "pushes=false"]
-NOMINAL_MODEL = [  # randomize=true with every model range at its nominal value: the sensor errors only
-    "randomization.friction=1.0,1.0",
-    "randomization.mass_scale=1.0,1.0",
-    "randomization.motor_strength=1.0,1.0",
-    "randomization.base_com_shift_m=0.0,0.0",
-    "randomization.latency_s=0.0,0.0",
-]
 FACTORS = [  # (the ground's label suffix, overrides): one disturbance at a time, then all but the pushes
     (", nominal, no pushes", NOMINAL),
     (", pushes only", ["randomize=false", "pushes=true"]),
-    (", sensor errors only", ["randomize=true", "pushes=false", *NOMINAL_MODEL]),
+    (", sensor errors only", ["randomize=true", "pushes=false", *nominal_range_overrides()]),
     (", randomized model and sensors, no pushes", ["randomize=true", "pushes=false"]),
 ]
 IDEAL_SENSORS = [  # the sensor-only actor's IMU and encoders without noise, bias, tilt or latency

@@ -27,6 +27,7 @@ import numpy as np
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.randomize import nominal_range_overrides
 from quadson_mjx.tiles_eval import SETTLE_S, run_trials, tiles_env_config
 from quadson_mjx.training import load_policy
 from quadson_mjx.wrappers import SUCCESS_SHARE
@@ -34,13 +35,10 @@ from quadson_mjx.wrappers import SUCCESS_SHARE
 TILES = [("flat", 0), ("slope_up", 7), ("stairs_up", 6), ("stairs_up", 7)]  # 16 deg, 2.8 / 3.2 cm
 STRENGTHS = (0.8, 0.9, 1.0, 1.2)
 PER_TILE, SECONDS, COMMAND, SEED, SATURATED = 32, 3.0, (0.3, 0.0, 0.0), 0, 0.98
-OTHER_RANGES_NOMINAL = [
-    "randomize=true",  # with the sensor errors
+OTHER_RANGES_NOMINAL = [  # with the sensor errors, no pushes
+    "randomize=true",
     "pushes=false",
-    "randomization.friction=1.0,1.0",
-    "randomization.mass_scale=1.0,1.0",
-    "randomization.base_com_shift_m=0.0,0.0",
-    "randomization.latency_s=0.0,0.0",
+    *nominal_range_overrides(keep=("motor_strength",)),
 ]
 
 

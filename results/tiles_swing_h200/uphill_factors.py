@@ -18,16 +18,11 @@ from pathlib import Path
 
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.randomize import nominal_range_overrides
 from quadson_mjx.tiles_eval import evaluate_tiles
 from quadson_mjx.training import load_policy
 
-NOMINAL_MODEL = [  # randomize=true with every model range at its nominal value: the sensor errors only
-    "randomization.friction=1.0,1.0",
-    "randomization.mass_scale=1.0,1.0",
-    "randomization.motor_strength=1.0,1.0",
-    "randomization.base_com_shift_m=0.0,0.0",
-    "randomization.latency_s=0.0,0.0",
-]
+NOMINAL_MODEL = nominal_range_overrides()  # with randomize=true: the sensor errors only
 
 
 def only(key: str, value: str) -> list[str]:
@@ -35,7 +30,7 @@ def only(key: str, value: str) -> list[str]:
     return [
         "randomize=true",
         "pushes=false",
-        *(o for o in NOMINAL_MODEL if not o.startswith(f"{key}=")),
+        *nominal_range_overrides(keep=(key.removeprefix("randomization."),)),
         f"{key}={value}",
     ]
 
