@@ -142,11 +142,12 @@ def evaluate_getup(
 
     def row(i) -> dict:
         times = acc["time_to_stand"][i & success]
+        drops, wins = int(i.sum()), int((i & success).sum())
         return {
-            "drops": int(i.sum()),
-            "successes": int((i & success).sum()),
-            "success": float(success[i].mean()) if i.any() else float("nan"),
-            "success_95": success_interval(int((i & success).sum()), int(i.sum())) if i.any() else None,
+            "drops": drops,
+            "successes": wins,
+            "success": wins / drops if drops else float("nan"),
+            "success_95": success_interval(wins, drops) if drops else None,
             "time_to_stand_mean_s": float(times.mean()) if times.size else float("nan"),
             "time_to_stand_median_s": float(np.median(times)) if times.size else float("nan"),
             "time_to_stand_p90_s": float(np.percentile(times, 90)) if times.size else float("nan"),
