@@ -36,7 +36,8 @@ and flat ground with the nominal model and no pushes;
     python results/policy_eval/yaw_rate_parts.py OUT.json --factors RUN
 
 one policy on the stones and on flat ground as evaluated and under one disturbance at a time
-(FACTORS: none, the pushes, the sensor errors, the randomized model with the sensor errors).
+(FACTORS: none, the pushes, the sensor errors, the randomized model with the sensor errors);
+`--factors RUN --only "sensor errors"` those FACTORS alone.
 """
 
 import json
@@ -122,13 +123,14 @@ def run_rows(runs: list[str]) -> list[tuple]:
     ]
 
 
-def factor_rows(run: str) -> list[tuple]:
-    """The policy of `run` on the stones and on flat ground as evaluated, then under each of FACTORS."""
-    return [
-        (Path(run).name, run, "policy", terrain, overrides)
-        for terrain in ("rough", "flat")
-        for overrides in [[], *(o for _, o in FACTORS)]
-    ]
+def factor_rows(run: str, only: str | None = None) -> list[tuple]:
+    """The policy of `run` on the stones and on flat ground as evaluated, then under each of FACTORS;
+    `only`: the FACTORS whose label holds it, alone."""
+    conditions = [[]] if only is None else []
+    conditions += [o for label, o in FACTORS if only is None or only in label]
+    if not conditions:
+        raise SystemExit(f"--only {only!r}: no condition of {[label for label, _ in FACTORS]}")
+    return [(Path(run).name, run, "policy", terrain, o) for terrain in ("rough", "flat") for o in conditions]
 
 
 def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS, rows=ROWS) -> None:
@@ -192,7 +194,8 @@ def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS, rows=RO
 
 if __name__ == "__main__":
     if len(sys.argv) > 2 and sys.argv[2] == "--factors":
-        main(sys.argv[1], rows=factor_rows(sys.argv[3]))
+        only = sys.argv[5] if len(sys.argv) > 5 and sys.argv[4] == "--only" else None
+        main(sys.argv[1], rows=factor_rows(sys.argv[3], only))
     elif len(sys.argv) > 2 and sys.argv[2] == "--runs":
         main(sys.argv[1], rows=run_rows(sys.argv[3:]))
     else:
