@@ -86,6 +86,8 @@ COMMITTED_RUNS = {
     "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
     # the main job with its own PPO settings (training.presets.MAIN_JOB)
     "results/policy_h100_main": ("QuadsonFlat", []),
+    # the main job with a 10-step unroll and 18M steps (MAIN_JOB now)
+    "results/policy_h100_main_unroll10": ("QuadsonFlat", []),
     # and the yaw error in the actor's observation, yaw-rate tracking weighed twice
     "results/policy_h200_sensors_yaw": (
         "QuadsonJoystickRough",
@@ -346,8 +348,8 @@ def test_train_task_and_flag_spellings_give_one_config(name, monkeypatch, tmp_pa
 
 def test_main_job_alone_gets_the_main_job_ppo_settings(monkeypatch, tmp_path):
     """On the gpu preset, the main command (no flag, or --task QuadsonFlat) trains with MAIN_JOB's
-    2048 environments and 24M steps; every other task, --gait-action included, with the preset's;
-    an override still wins."""
+    2048 environments, 10-step unroll and 18M steps; every other task, --gait-action included,
+    with the preset's; an override still wins."""
     from quadson_mjx.training.presets import MAIN_JOB
 
     class Stop(Exception):

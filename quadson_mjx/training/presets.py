@@ -13,11 +13,18 @@ from quadson_mjx.config import LAYER_SIZE_KEYS, Rule
 # The main job's settings on a GPU (`python train/ppo_mjx.py` with no task and no flag, or
 # --task QuadsonFlat): 2048 environments with the preset's 8 minibatches, so 4x its gradient steps
 # per sample, reach 0.45 m/s in a quarter of the preset's environment steps (8.0M against 32.8M,
-# benchmarks/results/ppo_settings_h200_b) and 0.48-0.49 m/s by 24M, where the preset needs 80M.
-# Evaluations at 0, 8, 16 and 24M steps. First runs on one NVIDIA H100 (empty compilation cache):
-# 134.7, 147.3 and 146.9 s against the preset's 182.7 s in the same session
-# (benchmarks/results/time_to_policy_h100_main.json).
-MAIN_JOB = {"num_envs": 2048, "batch_size": 256, "num_timesteps": 24_000_000, "num_evals": 4}
+# benchmarks/results/ppo_settings_h200_b); half the unroll (10 steps: an update every 20,480
+# samples) reaches it at 6M (benchmarks/results/ppo_settings_h200_c). Evaluations at 0, 6, 12 and
+# 18M steps. First runs on one NVIDIA H100 (empty compilation cache): 139.0 and 135.0 s, 0.45 m/s
+# at 92.4 and 89.7 s (benchmarks/results/time_to_policy_h100_kept.json); the 24M-step, 20-step
+# unroll settings before: 134.7-159.9 s, 0.45 m/s at 81.7-126.9 s in five runs.
+MAIN_JOB = {
+    "num_envs": 2048,
+    "batch_size": 256,
+    "unroll_length": 10,
+    "num_timesteps": 18_000_000,
+    "num_evals": 4,
+}
 
 
 def ppo_config(preset: str = "gpu", main_job: bool = False) -> ml_collections.ConfigDict:
