@@ -8,11 +8,14 @@ sensor errors on as randomize=true has them), and the sensor errors alone. The s
 so each robot meets the same ground and draws.
 
     python results/tiles_swing_h200/uphill_factors.py [RUN] > results/tiles_swing_h200/uphill_factors.log
+    python results/tiles_swing_h200/uphill_factors.py --envs 128 --only "nominal, no pushes" \
+        "randomized only" "randomized + pushes" > results/tiles_swing_h200/uphill_factors_128.log
 
-(RUN defaults to results/tiles_swing_h200; about 6 minutes on the 2-core CPU machine, idle.)
+(RUN defaults to results/tiles_swing_h200; 32 robots per tile: about 6 minutes on the 2-core CPU
+machine, idle; 128: about 1.5 minutes a row.)
 """
 
-import sys
+import argparse
 import time
 from pathlib import Path
 
@@ -50,17 +53,19 @@ CONDITIONS = {
 }
 
 
-def main(run: str) -> None:
+def main(run: str, conditions: dict[str, list[str]] = CONDITIONS, envs: int = 32) -> None:
+    """One row per condition: the env overrides (env. prefix implied) on the run's own config;
+    envs robots per tile."""
     policy, env_cfg, _, _ = load_policy(Path(run))
-    print(f"run {run}; 32 robots per tile, 3 s at vx 0.3 m/s; success % (mean distance share), falls")
+    print(f"run {run}; {envs} robots per tile, 3 s at vx 0.3 m/s; success % (mean distance share), falls")
     print(
         f"{'condition':22s} {'slope up 14':>16s} {'slope up 16':>16s} {'stairs up 2.8':>16s} {'stairs up 3.2':>16s}"
     )
-    for name, over in CONDITIONS.items():
+    for name, over in conditions.items():
         t0 = time.monotonic()
         cfg = apply_overrides(with_added_keys(env_cfg), over, prefix="env.")
         rows = evaluate_tiles(
-            cfg, policy, levels=[6, 7], envs_per_tile=32, seconds=3.0, types=["slope_up", "stairs_up"]
+            cfg, policy, levels=[6, 7], envs_per_tile=envs, seconds=3.0, types=["slope_up", "stairs_up"]
         )
         cells = [f"{100 * r['success']:5.0f} ({r['distance_share']:.2f}) {r['falls']}" for r in rows]
         print(
@@ -70,4 +75,9 @@ def main(run: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "results/tiles_swing_h200")
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("run", nargs="?", default="results/tiles_swing_h200")
+    ap.add_argument("--envs", type=int, default=32, help="robots per tile")
+    ap.add_argument("--only", nargs="+", choices=list(CONDITIONS), help="these rows only")
+    args = ap.parse_args()
+    main(args.run, {k: CONDITIONS[k] for k in args.only} if args.only else CONDITIONS, args.envs)
