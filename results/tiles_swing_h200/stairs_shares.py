@@ -29,7 +29,7 @@ def main(run: str) -> None:
     policy, env_cfg, _, _ = load_policy(Path(run))
     print(f"run {run}; {ENVS} robots per tile, {SECONDS:.0f} s at vx {SPEED} m/s from standing")
     print(
-        f"{'condition':14s} {'tile':14s} {'falls':>5s} {'success':>7s} {'share q25 / q50 / q75':>22s} "
+        f"{'condition':14s} {'tile':14s} {'falls':>5s} {'success':>10s} {'share q25 / q50 / q75':>22s} "
         f"{'0.70-0.80':>9s} {'speed after 1 s':>15s}"
     )
     for name, nominal in (("nominal", True), ("randomized", False)):
@@ -53,7 +53,7 @@ def main(run: str) -> None:
             q = np.quantile(share[i], [0.25, 0.5, 0.75])
             near = np.sum((share[i] >= SUCCESS_SHARE - 0.1) & (share[i] < SUCCESS_SHARE) & ~full["fell"][i])
             print(
-                f"{name:14s} {f'{t} {lv}':14s} {int(full['fell'][i].sum()):5d} {100 * ok.mean():6.0f}% "
+                f"{name:14s} {f'{t} {lv}':14s} {int(full['fell'][i].sum()):5d} {int(ok.sum()):3d} ({100 * ok.mean():3.0f}%) "
                 f"{f'{q[0]:.3f} / {q[1]:.3f} / {q[2]:.3f}':>22s} {int(near):9d} {later[i].mean():12.3f} m/s",
                 flush=True,
             )
