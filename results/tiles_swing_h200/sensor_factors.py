@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from uphill_factors import NOMINAL_MODEL, main  # noqa: E402
+from uphill_factors import CONDITIONS, main  # noqa: E402
 
 from quadson_mjx.env_recipes import SENSOR_MODEL  # noqa: E402
 
@@ -37,7 +37,7 @@ def zeroed(keys) -> list[str]:
 
 
 def sensor_conditions() -> dict[str, list[str]]:
-    base = ["randomize=true", "pushes=false", *NOMINAL_MODEL]
+    base = CONDITIONS["sensor errors only"]  # the nominal model with every sensor error
     every = [k for keys in GROUPS.values() for k in keys]
     assert sorted(every) == sorted(SENSOR_MODEL), "a sensor error is not in a group"
     out = {"no sensor errors": base + zeroed(every), "all sensor errors": base}
