@@ -193,7 +193,8 @@ def env_config(
             # Mass-matrix storage in MJX: "auto" (dense below 60 dofs on a GPU), "dense" or "sparse"
             # (factored level by level along the kinematic tree instead of by a batched Cholesky).
             "jacobian": "auto",
-            # MJX implementation: "jax" (this project's measured path) or "warp" (needs warp-lang).
+            # MJX implementation: "jax"; the environments refuse "warp" (env_model.check_env_impl;
+            # bare physics under it: benchmarks/warp_backend.py, which needs warp-lang).
             "impl": "jax",
             # The leg model (Robot.model_variants): "full" five-bar, or Quadson's "light" one, whose
             # passive link 4 is a fixed-length tendon (4 DoFs and 1 equality row per leg instead of

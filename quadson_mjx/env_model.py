@@ -109,12 +109,35 @@ def scene_xml_text(robot, cfg) -> str:
     return note + robot.model_xml_text("rough", variant)
 
 
+def check_env_impl(impl: str) -> None:
+    """Raises ValueError unless the environments can run on MJX implementation `impl`: "jax" only.
+    Under "warp" their reset would build MJX data from the device model (Warp builds it from the
+    MjModel, with contact and constraint buffers sized for all worlds) and their foot contacts read
+    the JAX implementation's contact list (Warp keeps one list for all worlds); bare physics under
+    Warp is measured in benchmarks/warp_backend.py."""
+    if impl != "jax":
+        raise ValueError(
+            f"env.impl={impl!r}: the environments run on MJX's JAX implementation only (their reset "
+            "and foot contacts use its data layout); benchmarks/warp_backend.py measures bare physics "
+            "under Warp; use env.impl=jax"
+        )
+
+
 def put_model(m: mujoco.MjModel, impl: str):
-    """mjx.put_model with the config's implementation; "warp" needs warp-lang and mujoco_warp, and
-    their import error is reported here, where it matters, not at every import of mujoco.mjx."""
-    if impl == "warp":
-        warp_notice.require_warp()
-    return mjx.put_model(m, impl=impl)
+    """mjx.put_model with the config's implementation; "warp" needs warp-lang (mujoco.mjx carries
+    its own MuJoCo Warp), and its import error is reported here, where it matters, not at every
+    import of mujoco.mjx."""
+    if impl != "warp":
+        return mjx.put_model(m, impl=impl)
+    warp_notice.require_warp()
+    from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
+
+    mx = mjx.put_model(m, impl=impl)
+    # Our models run one constraint-solver iteration on purpose (as Playground's Go1 does), which
+    # Warp reports as a limit reached at every step; its other overflow warnings (contacts,
+    # constraint rows, height field) stay on.
+    warn = mx.opt._impl.warn_overflow & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
+    return mx.replace(opt=mx.opt.replace(_impl=mx.opt._impl.replace(warn_overflow=warn)))
 
 
 def home_contact_points(

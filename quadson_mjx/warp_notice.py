@@ -50,13 +50,14 @@ def install() -> None:
 
 
 def require_warp() -> None:
-    """Raises ValueError with the import errors when the warp backend cannot run."""
+    """Raises ValueError with the import errors when the warp backend cannot run. mujoco.mjx carries
+    its own copy of MuJoCo Warp (mujoco.mjx.third_party); only warp-lang comes from outside."""
     try:
-        import mujoco_warp  # noqa: F401
         import warp  # noqa: F401
-    except ImportError as e:
+        from mujoco.mjx.third_party import mujoco_warp  # noqa: F401
+    except (ImportError, RuntimeError) as e:
         said = " ".join(line.strip() for text in captured for line in text.splitlines() if line.strip())
         raise ValueError(
-            f"env.impl='warp' needs warp-lang and mujoco_warp ({e}{'; ' + said if said else ''}); "
-            "install them (pip install warp-lang mujoco-warp) or use env.impl=jax"
+            f"env.impl='warp' needs warp-lang ({e}{'; ' + said if said else ''}); "
+            "install it (pip install warp-lang) or use env.impl=jax"
         ) from None

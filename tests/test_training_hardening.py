@@ -194,13 +194,12 @@ def test_regression_unknown_preset_flag_and_task_conflict_are_one_line(run_main,
     assert status == 2 and "--task QuadsonFlat names the robot" in _one_line(err)
 
 
-def test_regression_warp_without_warp_is_one_line(run_main, tmp_path):
-    import importlib.util
-
-    if importlib.util.find_spec("warp") is not None:
-        pytest.skip("warp-lang is installed here")
+def test_regression_warp_is_one_line(run_main, tmp_path):
+    """The environments run on MJX's JAX implementation only: env.impl=warp is refused in one line
+    before a run directory is made, whether warp-lang is installed or not."""
     status, err = run_main("--preset", "test", "--run-dir", str(tmp_path / "R"), "--env.impl=warp")
-    assert status == 2 and "env.impl='warp' needs warp-lang" in _one_line(err)
+    line = _one_line(err)
+    assert status == 2 and "env.impl='warp'" in line and "use env.impl=jax" in line
     assert not (tmp_path / "R").exists()
 
 

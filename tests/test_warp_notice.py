@@ -43,3 +43,15 @@ def test_the_hook_leaves_other_imports_alone():
         "import quadson_mjx, json, sys; print(sum(type(f).__name__ == '_Finder' for f in sys.meta_path))"
     )
     assert res.stdout.strip() == "1"
+
+
+def test_the_environment_refuses_warp_with_a_clear_error():
+    """Its reset and foot contacts use the JAX implementation's data layout (env_model.check_env_impl)."""
+    from quadson_mjx.env import LocomotionEnv
+
+    cfg = env_config()
+    cfg.impl = "warp"
+    with pytest.raises(
+        ValueError, match=r"env.impl='warp': the environments run on MJX's JAX implementation only"
+    ):
+        LocomotionEnv(cfg)

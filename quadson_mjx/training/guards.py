@@ -1,16 +1,16 @@
 """What stops a training run early with one line instead of a wasted run or a traceback: a run that
 diverged (a non-finite loss, gradient or parameter at an evaluation), a batch of environments that
 cannot fit in memory (estimated before compiling; XLA's resource-exhausted error after), a physics
-backend that is not installed."""
+implementation the environments do not run on (env.impl="warp")."""
 
 from __future__ import annotations
 
-import importlib.util
 import os
 
 import jax
 import numpy as np
 
+from quadson_mjx import env_model
 from quadson_mjx.errors import UsageError
 
 
@@ -50,9 +50,11 @@ def diverged(where: str, what: list[str], last_good: str) -> TrainingDiverged:
 
 
 def check_backend(env_cfg) -> None:
-    """Raises UsageError when env.impl names an MJX backend that is not installed."""
-    if env_cfg.impl == "warp" and importlib.util.find_spec("warp") is None:
-        raise UsageError("env.impl='warp' needs warp-lang (pip install warp-lang); use env.impl=jax")
+    """Raises UsageError when env.impl names an MJX implementation the environments do not run on."""
+    try:
+        env_model.check_env_impl(env_cfg.impl)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
 
 
 def memory_bytes(devices: int) -> tuple[int, str]:
