@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
+from quadson_mjx import env_model
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.robots import ROBOT_NAMES, get_robot
@@ -107,38 +108,68 @@ def load_go1(scene: str) -> mujoco.MjModel:
 
 
 def physics_only(
-    m: mujoco.MjModel, qpos0, ctrl0, n_envs: int, steps: int, repeats: int, read_sensors: bool = True
+    m: mujoco.MjModel,
+    qpos0,
+    ctrl0,
+    n_envs: int,
+    steps: int,
+    repeats: int,
+    read_sensors: bool = True,
+    impl: str = "jax",
+    contacts_per_world: int | None = None,
+    njmax: int | None = None,
 ) -> dict:
     """Control steps/s of bare MJX stepping with noisy position targets around ctrl0.
 
-    read_sensors: the rollout returns the sensor values of every control step (their sum), so they
-    are computed as an env that reads them would; False returns only the final qpos, and XLA then
-    drops the sensors' work (the earlier protocol)."""
-    mx = mjx.put_model(m)
+    qpos0 (nq,) or (n_envs, nq) and ctrl0 (nu,) or (n_envs, nu): one start for all worlds or one
+    each. read_sensors: the rollout returns the sensor values of every control step (their sum), so
+    they are computed as an env that reads them would; False returns only the final qpos, and XLA
+    then drops the sensors' work (the earlier protocol). impl "warp": Warp's one contact buffer
+    holds n_envs x contacts_per_world contacts, each world njmax constraint rows; the result says
+    whether a step filled either ("overflow": contacts or constraints dropped)."""
+    mx = env_model.put_model(m, impl)
     n_sub = round(0.02 / m.opt.timestep)
-    ctrl0 = jnp.asarray(ctrl0)
+    qpos0, ctrl0 = jnp.asarray(qpos0), jnp.asarray(ctrl0)
+    if impl == "warp":
+        naconmax = n_envs * contacts_per_world
+        base = mjx.make_data(m, impl="warp", naconmax=naconmax, njmax=njmax)
+    else:
+        base = mjx.make_data(mx)
 
-    def one_world(_):
-        d = mjx.make_data(mx).replace(qpos=jnp.asarray(qpos0), ctrl=ctrl0)
-        return mjx.forward(mx, d)
+    def one_world(q, u):
+        return mjx.forward(mx, base.replace(qpos=q, ctrl=u))
 
     @jax.jit
     def rollout(data, key):
         def ctrl_step(d, k):
-            d = d.replace(ctrl=ctrl0 + NOISE_RAD * jax.random.normal(k, (n_envs, ctrl0.shape[0])))
+            d = d.replace(ctrl=ctrl0 + NOISE_RAD * jax.random.normal(k, (n_envs, ctrl0.shape[-1])))
 
             def sub(d, _):
-                return jax.vmap(mjx.step, in_axes=(None, 0))(mx, d), None
+                d = jax.vmap(mjx.step, in_axes=(None, 0))(mx, d)
+                fill = (jnp.max(d._impl.nacon), jnp.max(d._impl.nefc)) if impl == "warp" else (0, 0)
+                return d, fill
 
-            d, _ = jax.lax.scan(sub, d, None, length=n_sub)
-            return d, jnp.sum(d.sensordata) if read_sensors else None
+            d, fill = jax.lax.scan(sub, d, None, length=n_sub)
+            fill = tuple(jnp.max(f) for f in fill)
+            return d, (jnp.sum(d.sensordata) if read_sensors else 0.0, fill)
 
-        data, sensed = jax.lax.scan(ctrl_step, data, jax.random.split(key, steps))
-        return (data.qpos, sensed) if read_sensors else data.qpos
+        data, (sensed, fill) = jax.lax.scan(ctrl_step, data, jax.random.split(key, steps))
+        fill = tuple(jnp.max(f) for f in fill)
+        return (data.qpos, sensed, fill) if read_sensors else (data.qpos, fill)
 
-    data = jax.jit(jax.vmap(one_world))(jnp.arange(n_envs))
+    q_axis, u_axis = (0 if qpos0.ndim == 2 else None), (0 if ctrl0.ndim == 2 else None)
+    qs = qpos0 if q_axis == 0 else jnp.broadcast_to(qpos0, (n_envs, m.nq))
+    us = ctrl0 if u_axis == 0 else jnp.broadcast_to(ctrl0, (n_envs, m.nu))
+    data = jax.jit(jax.vmap(one_world))(qs, us)
     best, first = _best_time(rollout, (data, jax.random.PRNGKey(1)), repeats)
-    return {"physics_steps_per_s": n_envs * steps / best, "physics_compile_s": first - best}
+    out = {"physics_steps_per_s": n_envs * steps / best, "physics_compile_s": first - best}
+    result = rollout(data, jax.random.PRNGKey(1))
+    out["nonfinite_worlds"] = int(jnp.sum(~jnp.all(jnp.isfinite(result[0]), axis=1)))
+    if impl == "warp":
+        nacon, nefc = (int(x) for x in result[-1])
+        out.update(naconmax=naconmax, nacon_max=nacon, njmax=njmax, nefc_max=nefc)
+        out["overflow"] = nacon >= naconmax or nefc >= njmax
+    return out
 
 
 def env_under_gait(env: LocomotionEnv, n_envs: int, steps: int, repeats: int) -> dict:
