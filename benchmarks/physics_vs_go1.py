@@ -91,6 +91,20 @@ def run_meta(args) -> dict:
     }
 
 
+def recorder(meta: dict, out: str | None):
+    """-> (rows, record): record(row) appends the row, prints it as JSON and rewrites `out` (when
+    given) with meta and every row so far, so a run stopped by a time limit keeps what it measured."""
+    rows: list[dict] = []
+
+    def record(row: dict) -> None:
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        if out:
+            Path(out).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+
+    return rows, record
+
+
 def load_go1(scene: str) -> mujoco.MjModel:
     """Playground's feet-only Go1 scene without its visual meshes (collision-free, massless). Its
     height-field and texture files are found beside the scene (Playground passes them as assets;
@@ -230,13 +244,7 @@ def main(argv=None):
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     meta = run_meta(args)
-    rows: list[dict] = []
-
-    def record(row):
-        rows.append(row)
-        print(json.dumps(row), flush=True)
-        if args.out:
-            Path(args.out).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    rows, record = recorder(meta, args.out)
 
     print(f"# {meta}", flush=True)
     if args.go1_scene:

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import sys
 import time
 from pathlib import Path
@@ -37,7 +36,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import mujoco
-from physics_vs_go1 import load_go1, physics_only, run_meta
+from physics_vs_go1 import load_go1, physics_only, recorder, run_meta
 
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.randomize import randomization_fn
@@ -128,13 +127,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     meta = run_meta(args)
-    rows: list[dict] = []
-
-    def record(row):
-        rows.append(row)
-        print(json.dumps(row), flush=True)
-        if args.out:
-            Path(args.out).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    rows, record = recorder(meta, args.out)
 
     print(f"# {meta}", flush=True)
     for n in args.envs:

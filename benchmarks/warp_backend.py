@@ -8,7 +8,7 @@ Rows (--models): Playground's feet-only Go1 (the anchor; see physics_vs_go1.py f
 walking model on flat ground and on the stone field (started at home), and the get-up model (every
 geom collides with the ground) on both, started from --agree-worlds of the get-up task's own drops
 (GetupEnv.reset: 0.2-0.5 m, random orientation and motor angles) landed (held 1 s in MuJoCo C, then
-at rest), repeated to fill the worlds. Protocol as physics_vs_go1.py: 5 physics steps
+at rest) and clear of the ground (landed_starts), repeated to fill the worlds. Protocol as physics_vs_go1.py: 5 physics steps
 of 4 ms per 0.02 s control step, targets = the start's + N(0, 0.1 rad) drawn every control step,
 one jitted lax.scan of --steps control steps (--getup-steps for the get-up rows, whose JAX rows
 on the stones are slow), compiled once, best of --repeats.
@@ -31,15 +31,13 @@ rewrites the JSON after every measurement.
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
-from physics_vs_go1 import load_go1, physics_only, run_meta
+from physics_vs_go1 import load_go1, physics_only, recorder, run_meta
 
 from quadson_mjx import tasks
 from quadson_mjx.env import LocomotionEnv
@@ -80,6 +78,45 @@ def starts(name: str, go1_scene: str | None, n: int) -> tuple[mujoco.MjModel, np
     return env._mj_model, np.asarray(state.pipeline_state.qpos), np.asarray(state.pipeline_state.ctrl)
 
 
+def sunk_m(m: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """(n,) how far the deepest ground-colliding geom's centre lies below the ground under it [m]
+    (negative: every centre above it), from the project's height query."""
+    from quadson_mjx import terrain
+
+    field = terrain.heightfield(m)
+    kinds = (int(mujoco.mjtGeom.mjGEOM_HFIELD), int(mujoco.mjtGeom.mjGEOM_PLANE))
+    ground = [g for g in range(m.ngeom) if int(m.geom_type[g]) in kinds]
+    parts = [g for g in range(m.ngeom) if g not in ground and any(collide(m, g, f) for f in ground)]
+    d = mujoco.MjData(m)
+    out = []
+    for q in qpos:
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        p = d.geom_xpos[parts]
+        h = np.asarray(terrain.ground_height(field, jnp.asarray(p[:, :2])))
+        out.append(float(np.max(h - p[:, 2])))
+    return np.array(out)
+
+
+def landed_starts(name: str, k: int) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray]:
+    """k of the get-up task's drops landed in MuJoCo C (held 1 s), keeping only those with no geom's
+    centre below the ground under it: on the stones MuJoCo C lets a thin link capsule sink through
+    the height field as it lands (up to 4 cm, no contact reported), and such a start throws the
+    robot out of the ground under either MJX implementation (a first measurement's non-finite
+    worlds)."""
+    m, qpos, ctrl = starts(name, None, 8 * k)
+    qpos = mujoco_c(m, qpos, ctrl, 50)["qpos"]
+    clean = np.flatnonzero(sunk_m(m, qpos) <= 0.0)
+    if len(clean) < k:
+        raise SystemExit(f"{name}: only {len(clean)} of {8 * k} landed drops are clear of the ground")
+    return m, qpos[clean[:k]], ctrl[clean[:k]]
+
+
+def collide(m: mujoco.MjModel, a: int, b: int) -> bool:
+    """contype/conaffinity let geoms a and b collide."""
+    return bool((m.geom_contype[a] & m.geom_conaffinity[b]) or (m.geom_contype[b] & m.geom_conaffinity[a]))
+
+
 def candidate_pairs(m: mujoco.MjModel) -> int:
     """How many geom pairs may collide (contype/conaffinity, not within one body, not parent and
     child unless that filter is off, not both on the world body; plus explicit pairs): what Warp's
@@ -91,9 +128,7 @@ def candidate_pairs(m: mujoco.MjModel) -> int:
     for i in range(m.ngeom):
         for j in range(i + 1, m.ngeom):
             bi, bj = body[i], body[j]
-            if not (
-                (m.geom_contype[i] & m.geom_conaffinity[j]) or (m.geom_contype[j] & m.geom_conaffinity[i])
-            ):
+            if not collide(m, i, j):
                 continue
             if weld[bi] == weld[bj] or (weld[bi] == 0 and weld[bj] == 0):
                 continue
@@ -172,22 +207,17 @@ def main(argv=None):
     if "go1" in args.models and not args.go1_scene:
         p.error("the go1 row needs --go1-scene (or leave go1 out of --models)")
     meta = run_meta(args)
-    rows: list[dict] = []
-
-    def record(row):
-        rows.append(row)
-        print(json.dumps(row), flush=True)
-        if args.out:
-            Path(args.out).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    rows, record = recorder(meta, args.out)
 
     print(f"# {meta}", flush=True)
     for name in args.models:
         getup = name.startswith("getup")
         sizes, steps = (args.getup_envs, args.getup_steps) if getup else (args.envs, args.steps)
         k = args.agree_worlds
-        m, qpos, ctrl = starts(name, args.go1_scene, k)
-        if getup:  # the drops, landed: held 1 s in MuJoCo C, then at rest (qvel 0) on the ground
-            qpos = mujoco_c(m, qpos, ctrl, 50)["qpos"]
+        if getup:  # k drops, landed: held 1 s in MuJoCo C, then at rest (qvel 0) on the ground
+            m, qpos, ctrl = landed_starts(name, k)
+        else:
+            m, qpos, ctrl = starts(name, args.go1_scene, k)
         c = mujoco_c(m, qpos, ctrl, args.agree_steps)
         pairs = candidate_pairs(m)
         per_world = args.contacts_per_world or max(2 * c["ncon_max"], pairs, 8)
