@@ -4,22 +4,23 @@ against MuJoCo Playground's feet-only Go1 under each, and how far each strays fr
     python benchmarks/warp_backend.py --go1-scene PATH/scene_mjx_feetonly_flat_terrain.xml \
         --envs 8192 32768 --out benchmarks/results/warp_backend_h100.json
 
-Rows (--models): Playground's feet-only Go1 (the anchor; see physics_vs_go1.py for the file), the
-walking model on flat ground and on the stone field (started at home), and the get-up model (every
-geom collides with the ground) on both, started from --agree-worlds of the get-up task's own drops
-(GetupEnv.reset: 0.2-0.5 m, random orientation and motor angles) landed (held 1 s in MuJoCo C, then
-at rest) and clear of the ground (landed_starts), repeated to fill the worlds. Protocol as physics_vs_go1.py: 5 physics steps
-of 4 ms per 0.02 s control step, targets = the start's + N(0, 0.1 rad) drawn every control step,
-one jitted lax.scan of --steps control steps (--getup-steps for the get-up rows, whose JAX rows
-on the stones are slow), compiled once, best of --repeats.
+Rows (--models): Playground's feet-only Go1 (the anchor; see physics_vs_go1.py for the file); the
+walking model on flat ground, on the stone field (base box colliding too, or `_feet` only) and on
+the tiles (`_feet`), standing at home; the get-up model (every geom collides with the ground) on
+flat ground and the stones, from --agree-worlds of the get-up task's own drops (GetupEnv.reset:
+0.2-0.5 m, random orientation and motor angles) landed (held 1 s in MuJoCo C, then at rest) and
+clear of the ground (landed_starts), repeated to fill the worlds. Protocol as physics_vs_go1.py: 5
+physics steps of 4 ms per 0.02 s control step, targets = the start's + N(0, 0.1 rad) drawn every
+control step, one jitted lax.scan of --steps control steps (--getup-steps for the get-up rows,
+whose JAX rows on the stones are slow), compiled once, best of --repeats.
 
 Warp keeps one contact buffer for all worlds and a fixed number of constraint rows per world; both
 are sized here (unless --contacts-per-world / --njmax say): naconmax = worlds x the larger of the
 geom pairs that may collide (its broad phase hands them on) and 2 x the most contacts one world had
-in MuJoCo C over the agreement run; njmax = 2 x the most constraint rows there (at least 32).
-Warp also prints a warning when a geom meets more than 50 height-field prisms' contacts (it keeps
-50): look for "height field collision overflow" in the output. A row whose
-run filled either is marked "overflow" (its physics dropped contacts or constraints: not valid).
+in MuJoCo C over the agreement run; njmax = 2 x the most constraint rows there (at least 32). A row
+whose run filled either is marked "overflow" (contacts or constraints dropped: not valid). Warp
+also prints a warning when a geom meets more than the 50 height-field contacts it keeps: look for
+"height field collision overflow" in the output.
 
 Agreement: --agree-worlds starts of each model, held at the start's targets for --agree-steps
 control steps in MuJoCo C (mj_step) and in MJX under each implementation; the largest difference
