@@ -19,6 +19,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from warp_backend import collide
 
 from quadson_mjx import knockdown
 from quadson_mjx.cli.knockdown import policy_file
@@ -34,12 +35,7 @@ class SinkProbe:
         m = plant.m
         self.floor = next(g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_HFIELD)
         f = self.floor
-        self.parts = [
-            g
-            for g in range(m.ngeom)
-            if g != f
-            and (m.geom_contype[g] & m.geom_conaffinity[f] or m.geom_contype[f] & m.geom_conaffinity[g])
-        ]
+        self.parts = [g for g in range(m.ngeom) if g != f and collide(m, g, f)]
         self.every, self.deepest, self.at_tick, self.touching = every, -np.inf, -1, True
 
     def step(self, k, plant, *_):

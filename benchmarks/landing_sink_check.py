@@ -19,7 +19,7 @@ import argparse
 
 import mujoco
 import numpy as np
-from warp_backend import mujoco_c, starts, sunk_m
+from warp_backend import collide, mujoco_c, starts, sunk_m
 
 
 def deepest(m: mujoco.MjModel, q: np.ndarray) -> tuple[int, float, float, int]:
@@ -31,9 +31,7 @@ def deepest(m: mujoco.MjModel, q: np.ndarray) -> tuple[int, float, float, int]:
     mujoco.mj_forward(m, d)
     worst, geom = -np.inf, -1
     for g in range(m.ngeom):
-        if g == floor or not (
-            m.geom_contype[g] & m.geom_conaffinity[floor] or m.geom_contype[floor] & m.geom_conaffinity[g]
-        ):
+        if g == floor or not collide(m, g, floor):
             continue
         p = d.geom_xpos[g]
         top = 1.0
