@@ -19,6 +19,9 @@ of the distance between each leg's two p3 sites; 0 for Caramel, which has no loo
 of worlds that fell. Prints a
 markdown table; the JSON is rewritten after every measurement.
 
+--impls jax warp measures every row (Go1's too) on both of MJX's implementations; "vs Go1" is
+against Go1 on the JAX implementation (the anchor of every earlier run).
+
 --fivebar-models full light measures each setting on both of Quadson's leg models (env.fivebar_model;
 the light one's rows are named SETTING+light); robots without that model (Caramel) are skipped for it.
 """
@@ -219,6 +222,14 @@ def env_under_gait(env: LocomotionEnv, n_envs: int, steps: int, repeats: int) ->
     }
 
 
+def _warp_sizes(m: mujoco.MjModel, impl: str) -> dict:
+    """physics_only's Warp buffer arguments for m: the environment's own (env_model.warp_buffers)."""
+    if impl != "warp":
+        return {}
+    contacts, rows = env_model.warp_buffers(m, 1)
+    return {"contacts_per_world": contacts, "njmax": rows}
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--go1-scene", default=None, help="Playground's scene_mjx_feetonly_flat_terrain.xml")
@@ -241,6 +252,13 @@ def main(argv=None):
         choices=["full", "light"],
         help="env.fivebar_model values to measure (light: Quadson's link 4 as a fixed-length tendon)",
     )
+    p.add_argument(
+        "--impls",
+        nargs="+",
+        default=["jax"],
+        choices=["jax", "warp"],
+        help="MJX implementations (env.impl) to measure every row on, Go1's included (warp: warp-lang)",
+    )
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     meta = run_meta(args)
@@ -250,58 +268,72 @@ def main(argv=None):
     if args.go1_scene:
         go1 = load_go1(args.go1_scene)
         key = mujoco.mj_name2id(go1, mujoco.mjtObj.mjOBJ_KEY, "home")
-        for sensors in args.go1_sensors:
+        for sensors, impl in ((s, i) for s in args.go1_sensors for i in args.impls):
             m = load_go1(args.go1_scene)
             if sensors == "off":
                 m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
             for n in args.envs:
                 out = physics_only(
-                    m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats, sensors == "read"
+                    m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats, sensors == "read",
+                    **_warp_sizes(m, impl),
+                )  # fmt: skip
+                record(
+                    {"robot": "go1_feetonly", "setting": f"sensors_{sensors}", "impl": impl, "envs": n, **out}
                 )
-                record({"robot": "go1_feetonly", "setting": f"sensors_{sensors}", "envs": n, **out})
-    for robot, name, fivebar in (
-        (r, s, f) for r in args.robots for f in args.fivebar_models for s in args.settings
+    for robot, name, fivebar, impl in (
+        (r, s, f, i)
+        for r in args.robots
+        for f in args.fivebar_models
+        for s in args.settings
+        for i in args.impls
     ):
         if fivebar not in get_robot(robot).model_variants:
             continue
         cfg = env_config(robot=robot)
-        for key, value in {**SETTINGS[name], "fivebar_model": fivebar}.items():
+        for key, value in {**SETTINGS[name], "fivebar_model": fivebar, "impl": impl}.items():
             cfg[key] = value
+        cfg.warp_max_worlds = max(args.envs)
         env = LocomotionEnv(cfg)
         m = env.mj_model
         home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
-        dx = mjx.make_data(env.sys)
+        dx = mjx.make_data(m)
         setting = name if fivebar == "full" else f"{name}+{fivebar}"
         for n in args.envs:
             row = {
                 "robot": robot,
                 "setting": setting,
+                "impl": impl,
                 "envs": n,
                 "nv": m.nv,
                 "nefc": int(dx._impl.efc_J.shape[0]),
             }
-            row.update(physics_only(m, m.key_qpos[home], m.key_ctrl[home], n, args.steps, args.repeats))
+            row.update(
+                physics_only(m, m.key_qpos[home], m.key_ctrl[home], n, args.steps, args.repeats, impl=impl,
+                             **_warp_sizes(m, impl))
+            )  # fmt: skip
             row.update(env_under_gait(env, n, args.steps, args.repeats))
             record(row)
 
     anchor = {
         r["envs"]: r["physics_steps_per_s"]
         for r in rows
-        if r["robot"] == "go1_feetonly" and r["setting"] == f"sensors_{args.go1_sensors[0]}"
+        if r["robot"] == "go1_feetonly"
+        and r["setting"] == f"sensors_{args.go1_sensors[0]}"
+        and r.get("impl", "jax") == "jax"
     }
     print(f"\ndevice: {meta['device']}; {args.steps} control steps of 0.02 s (5 physics steps each)")
-    print(f"vs Go1: against Go1 with sensors {args.go1_sensors[0]}")
+    print(f"vs Go1: against Go1 with sensors {args.go1_sensors[0]} on MJX's JAX implementation")
     print(
-        "| robot | setting | envs | nv | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
+        "| robot | setting | impl | envs | nv | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         ratio = f"{r['physics_steps_per_s'] / anchor[r['envs']]:.2f}x" if r["envs"] in anchor else "-"
         env_sps = f"{r['env_steps_per_s']:,.0f}" if "env_steps_per_s" in r else "-"
         res = f"{1e3 * r['closure_residual_max_m']:.2f} mm" if "closure_residual_max_m" in r else "-"
         fell = f"{100 * r['fell_frac']:.1f} %" if "fell_frac" in r else "-"
         print(
-            f"| {r['robot']} | {r['setting']} | {r['envs']} | {r.get('nv', '-')} | {r.get('nefc', '-')} | "
+            f"| {r['robot']} | {r['setting']} | {r.get('impl', 'jax')} | {r['envs']} | {r.get('nv', '-')} | {r.get('nefc', '-')} | "
             f"{r['physics_steps_per_s']:,.0f} | {ratio} | {env_sps} | {res} | {fell} |"
         )
 

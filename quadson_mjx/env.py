@@ -39,9 +39,11 @@ from quadson_mjx.env_model import (
     base_bottom_points,
     check_env_impl,
     home_contact_points,
+    make_env_data,
     name_ids,
     put_model,
     training_model,
+    warp_buffers,
 )
 from quadson_mjx.quat import quat_mul, quat_rotate
 from quadson_mjx.robots import get_robot
@@ -160,6 +162,11 @@ class LocomotionEnv(Env):
         self._seed_speed = float(gait.seed_speed(self._gait))
         self._forward_target = self._seed_speed if cfg.reward.target_gait_speed else cfg.reward.forward_target
         self._foot_geoms = jnp.asarray(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
+        self._warp_buffers, self._foot_sensors = None, None
+        if cfg.impl == "warp":
+            self._warp_buffers = warp_buffers(m, cfg.warp_max_worlds)
+            sensors = name_ids(m, mujoco.mjtObj.mjOBJ_SENSOR, [f"{g}_ground" for g in robot.foot_geoms()])
+            self._foot_sensors = jnp.asarray(m.sensor_adr[sensors])
         # nominal values the privileged observation divides the randomized model's by
         self._foot_radius = jnp.asarray(m.geom_size[np.asarray(self._foot_geoms), 0])
         self._nominal_base_mass = float(m.body_mass[self._base_body])
@@ -225,6 +232,12 @@ class LocomotionEnv(Env):
     @property
     def backend(self) -> str:
         return "mjx"
+
+    @property
+    def max_worlds(self) -> int | None:
+        """The most worlds one batch may step (under Warp: env.warp_max_worlds, what the contact
+        buffer is sized for); None: no limit (the JAX implementation sizes per world)."""
+        return None if self._warp_buffers is None else int(self._config.warp_max_worlds)
 
     @property
     def config(self):
@@ -341,7 +354,7 @@ class LocomotionEnv(Env):
         return state
 
     def _start(self, qpos, k_info) -> State:
-        data = mjx.make_data(self.sys)
+        data = make_env_data(self._mj_model, self.sys, self._warp_buffers)
         data = data.replace(qpos=qpos, qvel=jnp.zeros(self.sys.nv), ctrl=self._home_ctrl)
         # Positions only (body, geom and site frames): a step recomputes everything else from qpos,
         # qvel and ctrl, so its result is the same as after a full mjx.forward (tested bit for bit),
@@ -499,7 +512,10 @@ class LocomotionEnv(Env):
         """(4,) bool, LEGS order: the foot's collision sphere touches the ground (a contact of that
         geom with negative distance; the model has no contact margin). After mjx.step these are the
         contacts of the last physics substep's start (MuJoCo detects contacts before it integrates),
-        one timestep (4 ms) before the control step's end."""
+        one timestep (4 ms) before the control step's end. Under Warp: the feet's contact sensors
+        (env_model.foot_contact_sensors), evaluated at the same point of the step."""
+        if self._foot_sensors is not None:
+            return data.sensordata[self._foot_sensors] > 0.0
         c = data._impl.contact
         involved = (c.geom1[None, :] == self._foot_geoms[:, None]) | (
             c.geom2[None, :] == self._foot_geoms[:, None]

@@ -47,6 +47,7 @@ ENV_KEYS_ADDED = {
     "joint_limits": True,
     "cone": "pyramidal",
     "impl": "jax",
+    "warp_max_worlds": 8192,
     "solver": "newton",
     "solver_iterations": 1,
     "sim_dt": 0.0,
@@ -193,9 +194,14 @@ def env_config(
             # Mass-matrix storage in MJX: "auto" (dense below 60 dofs on a GPU), "dense" or "sparse"
             # (factored level by level along the kinematic tree instead of by a batched Cholesky).
             "jacobian": "auto",
-            # MJX implementation: "jax"; the environments refuse "warp" (env_model.check_env_impl;
-            # bare physics under it: benchmarks/warp_backend.py, which needs warp-lang).
+            # MJX implementation: "jax", or "warp" (MuJoCo Warp through mujoco.mjx; needs the
+            # warp extra, warp-lang). Under Warp the feet's ground contact comes from four contact
+            # sensors (the model's other sensors removed) and one contact buffer serves all worlds
+            # (env_model.warp_buffers; docs/benchmarks.md "MJX's Warp implementation").
             "impl": "jax",
+            # Under Warp: the most worlds one batch steps (the contact buffer is sized for them;
+            # a larger batch is refused at reset). Playground's Go1 uses 8192 too.
+            "warp_max_worlds": 8192,
             # The leg model (Robot.model_variants): "full" five-bar, or Quadson's "light" one, whose
             # passive link 4 is a fixed-length tendon (4 DoFs and 1 equality row per leg instead of
             # 5 and 3; docs/physics.md, benchmarks/fivebar_light_vs_full.py).
@@ -356,6 +362,7 @@ ENV_RULES: dict[str, Rule] = {
     "solver_iterations": Rule("int", 1, 100),
     "jacobian": Rule("name"),
     "impl": Rule("name"),
+    "warp_max_worlds": Rule("int", 1, 1 << 20, "worlds"),
     "fivebar_model": Rule("name"),
     "ctrl_dt": Rule("number", 0.0, 1.0, _S, lo_open=True),  # and a multiple of the model timestep
     "sim_dt": Rule("number", 0.0, 0.02, _S),  # 0: the model's; ctrl_dt a multiple of it

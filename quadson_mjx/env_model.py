@@ -4,6 +4,9 @@
 and applies what the config chooses for
 speed (no sensor evaluation, feet-only ground contact, no joint-limit rows) and the solver options
 (cone, solver, mass-matrix storage); `put_model` hands it to MJX with the chosen implementation.
+Under MJX's Warp implementation the feet's contacts come from contact sensors
+(`foot_contact_sensors`), its buffers are sized by `warp_buffers` and the reset's data is built
+from the MjModel (`make_env_data`).
 `name_ids` looks names up once (Python never hard-codes a model index).
 """
 
@@ -21,6 +24,9 @@ from quadson_mjx.terrain import FLOOR_GEOM
 from quadson_mjx.terrain_tiles import tile_spec
 
 BASE_GEOM = "base_collision"  # the base's box, every robot's
+# a contact sensor's intprm: its data (mjtConDataField bits: 1 = "found"), its reduction (1 =
+# "mindist"), its number of contacts
+CONTACT_FOUND, REDUCE_MINDIST = 1, 1
 
 
 def name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray:
@@ -35,14 +41,20 @@ def name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray
 def training_model(robot, cfg) -> mujoco.MjModel:
     """robot: quadson_mjx.robots.Robot; cfg: an env config -> a fresh MjModel of its terrain's scene."""
     variant = cfg.get("fivebar_model", "full")
-    m = (
-        tiles_model(robot, variant, tile_spec(cfg))
-        if cfg.terrain == "tiles"
-        else robot.load_model(cfg.terrain, variant)
-    )
+    warp = cfg.get("impl", "jax") == "warp"
+    spec = None
+    if cfg.terrain == "tiles":
+        spec = tiles_spec(robot, variant, tile_spec(cfg))
+    elif warp:
+        spec = mujoco.MjSpec.from_file(str(robot.scene_path(cfg.terrain, variant)))
+    if warp:
+        foot_contact_sensors(spec, robot)
+    m = robot.load_model(cfg.terrain, variant) if spec is None else spec.compile()
     # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
     # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+    # Under Warp the only sensors are the feet's contact sensors (foot_contact_sensors).
+    if not warp:
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
     if not cfg.base_terrain_contact:
         base_geom = int(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, [BASE_GEOM])[0])
         m.geom_contype[base_geom] = 0
@@ -58,6 +70,46 @@ def training_model(robot, cfg) -> mujoco.MjModel:
         m.opt.timestep = float(cfg.sim_dt)
     m.opt.jacobian = JACOBIANS[cfg.jacobian]
     return m
+
+
+def foot_contact_sensors(spec: mujoco.MjSpec, robot) -> None:
+    """Replaces the sensors of `spec` (in place) by one contact sensor per foot, LEGS order, between
+    the foot's collision sphere and the ground geom: 1 when they have a contact (data "found",
+    reduced to the deepest one), else 0. MJX's Warp implementation keeps one contact list for all
+    worlds, so a world reads its feet's contacts from these (sensordata) instead of that list."""
+    for sensor in list(spec.sensors):
+        spec.delete(sensor)
+    for geom in robot.foot_geoms():
+        spec.add_sensor(
+            name=f"{geom}_ground",
+            type=mujoco.mjtSensor.mjSENS_CONTACT,
+            objtype=mujoco.mjtObj.mjOBJ_GEOM,
+            objname=geom,
+            reftype=mujoco.mjtObj.mjOBJ_GEOM,
+            refname=FLOOR_GEOM,
+            intprm=[CONTACT_FOUND, REDUCE_MINDIST, 1],
+        )
+
+
+def warp_buffers(m: mujoco.MjModel, worlds: int) -> tuple[int, int]:
+    """The buffer sizes MJX's Warp implementation needs to step up to `worlds` worlds of model m ->
+    (naconmax: contacts, one list for all worlds; njmax: constraint rows per world): the contacts
+    and rows the JAX implementation allocates for one world (its static upper bound: every geom
+    pair that may collide, with the contacts each pair type can make, and their rows), the
+    contacts times `worlds`. Warp drops contacts or rows past these and prints an overflow warning."""
+    d = mjx.make_data(m, impl="jax")
+    per_world = max(int(d._impl.contact.dist.shape[0]), 1)
+    return per_world * int(worlds), max(int(d._impl.efc_J.shape[0]), 1)
+
+
+def make_env_data(m: mujoco.MjModel, sys, buffers: tuple[int, int] | None):
+    """A fresh mjx.Data for the environment's reset: from the device model `sys` (JAX
+    implementation, buffers None) or, under Warp, from the MjModel m with buffers (naconmax, njmax)
+    of warp_buffers."""
+    if buffers is None:
+        return mjx.make_data(sys)
+    naconmax, njmax = buffers
+    return mjx.make_data(m, impl="warp", naconmax=naconmax, njmax=njmax)
 
 
 def legs_touch_ground(m: mujoco.MjModel, robot) -> None:
@@ -78,6 +130,11 @@ def legs_touch_ground(m: mujoco.MjModel, robot) -> None:
 
 
 def tiles_model(robot, variant: str, spec: terrain_tiles.TerrainSpec) -> mujoco.MjModel:
+    """The robot over the tiled ground of `spec` (terrain_tiles.tile_grid), compiled (tiles_spec)."""
+    return tiles_spec(robot, variant, spec).compile()
+
+
+def tiles_spec(robot, variant: str, spec: terrain_tiles.TerrainSpec) -> mujoco.MjSpec:
     """The robot over the tiled ground of `spec` (terrain_tiles.tile_grid): its stone-field scene
     (the same floor geom, contact and materials) with the height field's samples, extent and relief
     replaced, the floor geom lowered to the field's lowest point. Built in memory (no file; MjSpec,
@@ -92,7 +149,7 @@ def tiles_model(robot, variant: str, spec: terrain_tiles.TerrainSpec) -> mujoco.
     field.size = size
     field.userdata = terrain_tiles.hfield_data(heights).tolist()
     floor.pos = [0.0, 0.0, lowest]
-    return mj_spec.compile()
+    return mj_spec
 
 
 def scene_xml_text(robot, cfg) -> str:
@@ -110,17 +167,12 @@ def scene_xml_text(robot, cfg) -> str:
 
 
 def check_env_impl(impl: str) -> None:
-    """Raises ValueError unless the environments can run on MJX implementation `impl`: "jax" only.
-    Under "warp" their reset would build MJX data from the device model (Warp builds it from the
-    MjModel, with contact and constraint buffers sized for all worlds) and their foot contacts read
-    the JAX implementation's contact list (Warp keeps one list for all worlds); bare physics under
-    Warp is measured in benchmarks/warp_backend.py."""
-    if impl != "jax":
-        raise ValueError(
-            f"env.impl={impl!r}: the environments run on MJX's JAX implementation only (their reset "
-            "and foot contacts use its data layout); benchmarks/warp_backend.py measures bare physics "
-            "under Warp; use env.impl=jax"
-        )
+    """Raises ValueError when the environments cannot run on MJX implementation `impl`: "jax"
+    always can; "warp" needs warp-lang (warp_notice.require_warp says what is missing)."""
+    if impl not in ("jax", "warp"):
+        raise ValueError(f"env.impl is {impl!r}; choose from ['jax', 'warp']")
+    if impl == "warp":
+        warp_notice.require_warp()
 
 
 def put_model(m: mujoco.MjModel, impl: str):

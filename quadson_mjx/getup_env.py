@@ -54,7 +54,7 @@ from mujoco import mjx
 
 from quadson_mjx import obs_spec, rewards, sensors, terrain
 from quadson_mjx.env import EXPLODED_SPEED, LocomotionEnv
-from quadson_mjx.env_model import motoring_forcerange, name_ids
+from quadson_mjx.env_model import make_env_data, motoring_forcerange, name_ids
 from quadson_mjx.quat import quat_rotate_inverse
 from quadson_mjx.robots.quadson import chain_guard, getup_start
 from quadson_mjx.robots.quadson import constants as C
@@ -157,7 +157,7 @@ class GetupEnv(LocomotionEnv):
             top = jnp.max(terrain.ground_height(self._field, xy + grid))
             qpos = qpos.at[:2].set(xy).at[2].add(top)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles.reshape(12))
-        data = mjx.make_data(self.sys)
+        data = make_env_data(self._mj_model, self.sys, self._warp_buffers)
         data = data.replace(qpos=qpos, qvel=qvel, ctrl=ctrl)
         data = mjx.kinematics(self.sys, data)  # as LocomotionEnv._start: a step recomputes the rest
         info = {

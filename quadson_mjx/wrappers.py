@@ -40,6 +40,7 @@ class ResamplingAutoReset(Wrapper):
         self._episode_length = episode_length
 
     def reset(self, rng: jax.Array) -> State:
+        check_batch(self.env.unwrapped, rng.shape[0])
         state = self.env.reset(rng)
         state.info["first_pipeline_state"] = state.pipeline_state
         state.info["first_obs"] = state.obs
@@ -60,6 +61,8 @@ class ResamplingAutoReset(Wrapper):
             state = state.replace(info=info)
 
         def where_done(first, current):
+            if current.ndim == 0 or current.shape[0] != done.shape[0]:
+                return current  # Warp's buffers shared by all worlds (contacts), refilled every step
             mask = jnp.reshape(done, done.shape + (1,) * (current.ndim - done.ndim))
             return jnp.where(mask, first, current)
 
@@ -142,6 +145,17 @@ class ResamplingAutoReset(Wrapper):
                 return fn(v_env, *row)
 
         return jax.vmap(one, in_axes=[e._in_axes] + [0] * len(args))(e._sys_v, *args)
+
+
+def check_batch(env, n: int) -> None:
+    """Raises ValueError when a batch of n worlds is more than env (unwrapped) may step at once
+    (env.max_worlds: under MJX's Warp implementation, what its contact buffer holds)."""
+    limit = getattr(env, "max_worlds", None)
+    if limit is not None and n > limit:
+        raise ValueError(
+            f"{n} worlds in one batch, but env.warp_max_worlds is {limit} (Warp's contact buffer is "
+            f"sized for that many); set env.warp_max_worlds >= {n}"
+        )
 
 
 def wrap_for_training(env, episode_length: int, action_repeat: int = 1, randomization_fn=None):

@@ -194,12 +194,15 @@ def test_regression_unknown_preset_flag_and_task_conflict_are_one_line(run_main,
     assert status == 2 and "--task QuadsonFlat names the robot" in _one_line(err)
 
 
-def test_regression_warp_is_one_line(run_main, tmp_path):
-    """The environments run on MJX's JAX implementation only: env.impl=warp is refused in one line
-    before a run directory is made, whether warp-lang is installed or not."""
-    status, err = run_main("--preset", "test", "--run-dir", str(tmp_path / "R"), "--env.impl=warp")
+def test_regression_warp_batch_larger_than_its_buffers_is_one_line(run_main, tmp_path):
+    """Under Warp the contact buffer is sized for env.warp_max_worlds worlds: a run whose batch is
+    larger is refused in one line before a run directory is made."""
+    status, err = run_main(
+        "--preset", "test", "--run-dir", str(tmp_path / "R"), "--env.impl=warp", "--env.warp_max_worlds=1"
+    )
     line = _one_line(err)
-    assert status == 2 and "env.impl='warp'" in line and "use env.impl=jax" in line
+    assert status == 2 and "env.warp_max_worlds=1 is fewer worlds than" in line
+    assert "set --env.warp_max_worlds=" in line
     assert not (tmp_path / "R").exists()
 
 

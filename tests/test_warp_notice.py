@@ -6,10 +6,6 @@ import sys
 
 import pytest
 
-from quadson_mjx import warp_notice
-from quadson_mjx.env_config import env_config
-from quadson_mjx.env_model import put_model
-
 
 def _imports_quietly(code: str) -> subprocess.CompletedProcess:
     return subprocess.run(
@@ -23,19 +19,28 @@ def test_importing_the_environment_prints_nothing():
 
 
 def test_the_notice_is_kept_and_given_to_who_asks_for_warp():
-    try:
-        import warp  # noqa: F401
-    except ImportError:
-        pass
-    else:
-        pytest.skip("warp-lang is installed here: there is no notice to give")
-    import mujoco.mjx  # noqa: F401
-
-    cfg = env_config()
-    cfg.impl = "warp"
-    with pytest.raises(ValueError, match=r"env.impl='warp' needs warp-lang.*use env.impl=jax"):
-        put_model(None, cfg.impl)
-    assert warp_notice.MODULE in sys.modules
+    """Without warp-lang (its import blocked in a fresh interpreter), asking for the warp backend
+    is one ValueError that names it, from the model and from the environment."""
+    code = (
+        "import sys; sys.modules['warp'] = None\n"
+        "from quadson_mjx import warp_notice\n"
+        "import mujoco.mjx\n"
+        "from quadson_mjx.env_model import put_model, check_env_impl\n"
+        "from quadson_mjx.env import LocomotionEnv\n"
+        "from quadson_mjx.config import apply_overrides\n"
+        "from quadson_mjx.env_config import env_config\n"
+        "assert warp_notice.MODULE in sys.modules\n"
+        "for call in (lambda: put_model(None, 'warp'), lambda: LocomotionEnv(apply_overrides(env_config(), ['impl=warp']))):\n"
+        "    try:\n"
+        "        call()\n"
+        "    except ValueError as e:\n"
+        "        print(e)\n"
+    )
+    res = _imports_quietly(code)
+    lines = res.stdout.strip().splitlines()
+    assert len(lines) == 2
+    for line in lines:
+        assert line.startswith("env.impl='warp' needs warp-lang") and line.endswith("or use env.impl=jax")
 
 
 def test_the_hook_leaves_other_imports_alone():
@@ -45,13 +50,8 @@ def test_the_hook_leaves_other_imports_alone():
     assert res.stdout.strip() == "1"
 
 
-def test_the_environment_refuses_warp_with_a_clear_error():
-    """Its reset and foot contacts use the JAX implementation's data layout (env_model.check_env_impl)."""
-    from quadson_mjx.env import LocomotionEnv
+def test_an_unknown_implementation_is_one_error():
+    from quadson_mjx.env_model import check_env_impl
 
-    cfg = env_config()
-    cfg.impl = "warp"
-    with pytest.raises(
-        ValueError, match=r"env.impl='warp': the environments run on MJX's JAX implementation only"
-    ):
-        LocomotionEnv(cfg)
+    with pytest.raises(ValueError, match=r"^env.impl is 'cuda'; choose from \['jax', 'warp'\]$"):
+        check_env_impl("cuda")

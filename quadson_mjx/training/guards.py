@@ -1,13 +1,15 @@
 """What stops a training run early with one line instead of a wasted run or a traceback: a run that
 diverged (a non-finite loss, gradient or parameter at an evaluation), a batch of environments that
 cannot fit in memory (estimated before compiling; XLA's resource-exhausted error after), a physics
-implementation the environments do not run on (env.impl="warp")."""
+implementation the environments cannot run on here (env.impl="warp" without warp-lang, or a batch
+larger than Warp's buffers were sized for)."""
 
 from __future__ import annotations
 
 import os
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from quadson_mjx import env_model
@@ -49,12 +51,24 @@ def diverged(where: str, what: list[str], last_good: str) -> TrainingDiverged:
     )
 
 
-def check_backend(env_cfg) -> None:
-    """Raises UsageError when env.impl names an MJX implementation the environments do not run on."""
+def check_backend(env_cfg, ppo_cfg=None, devices: int = 1) -> None:
+    """Raises UsageError when env.impl names an MJX implementation the environments cannot run on
+    here (warp without warp-lang), or, given ppo_cfg, when a batch of the run (ppo.num_envs over
+    `devices`, ppo.num_eval_envs) is more worlds than Warp's contact buffer is sized for
+    (env.warp_max_worlds)."""
     try:
         env_model.check_env_impl(env_cfg.impl)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    if env_cfg.impl != "warp" or ppo_cfg is None:
+        return
+    batch = max(-(-ppo_cfg.num_envs // devices), ppo_cfg.num_eval_envs)
+    if batch > env_cfg.warp_max_worlds:
+        raise UsageError(
+            f"env.warp_max_worlds={env_cfg.warp_max_worlds} is fewer worlds than the run steps in one "
+            f"batch ({batch}: ppo.num_envs over {devices} device(s), or ppo.num_eval_envs); "
+            f"set --env.warp_max_worlds={batch}"
+        )
 
 
 def memory_bytes(devices: int) -> tuple[int, str]:
@@ -73,9 +87,9 @@ def check_memory(env, num_envs: int, devices: int) -> None:
     memory available; brax holds them at least twice (the state and its update), and the unrolls,
     networks and the randomized models come on top, so this is a lower bound: a run that passes can
     still run out (the resource-exhausted error is then caught, see `is_out_of_memory`)."""
-    shapes = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
-    per_env = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes))
-    need = 2 * per_env * num_envs
+    one, two = (state_bytes(env, n) for n in (1, 2))
+    per_env, shared = two - one, 2 * one - two  # shared: held once per batch (Warp's contact buffer)
+    need = 2 * (per_env * num_envs + shared)
     have, what = memory_bytes(devices)
     if need > have:
         raise OutOfMemory(
@@ -83,6 +97,14 @@ def check_memory(env, num_envs: int, devices: int) -> None:
             f"({per_env / 1e3:.1f} kB each, twice) and {what} has {have / 1e9:.1f} GB; "
             f"lower --ppo.num_envs (and --ppo.batch_size with it)"
         )
+
+
+def state_bytes(env, n: int) -> int:
+    """Bytes of the states of a batch of n environments (vmapped reset, jax.eval_shape: nothing
+    compiles)."""
+    keys = jax.ShapeDtypeStruct((n, 2), jnp.uint32)
+    shapes = jax.eval_shape(jax.vmap(env.reset), keys)
+    return sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes))
 
 
 def is_out_of_memory(exc: BaseException) -> bool:

@@ -214,7 +214,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             )
     check_env_config(env_cfg)
     check_ppo_config(ppo_cfg)
-    guards.check_backend(env_cfg)
+    guards.check_backend(env_cfg, ppo_cfg, local_devices_to_use(ppo_cfg))
     created = False
     if not resume and primary:
         created = _claim_new_run_dir(run_dir, held)

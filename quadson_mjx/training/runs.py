@@ -12,6 +12,7 @@ from pathlib import Path
 
 import ml_collections
 
+from quadson_mjx.config import apply_overrides
 from quadson_mjx.errors import UsageError
 from quadson_mjx.training.checkpoints import (
     latest_checkpoint,
@@ -245,12 +246,17 @@ def _reopen_log(run_dir: Path, log_path: Path, stream):
 
 
 def load_policy(run_dir: Path, checkpoint: Path | None = None, deterministic: bool = True):
-    """-> (policy(obs, key) -> (action, extras), env_cfg, ppo_cfg, params) from a run directory."""
+    """-> (policy(obs, key) -> (action, extras), env_cfg, ppo_cfg, params) from a run directory, for
+    an evaluation: env_cfg is the run's on MJX's JAX implementation even when it trained on Warp
+    (env.impl="warp"), so every evaluation steps the same physics code and reads its per-world
+    contact list (rollouts' foot forces), at any batch size."""
     from brax.training.agents.ppo import networks as ppo_networks
 
     from quadson_mjx.envs import make_env
 
     env_cfg, ppo_cfg = load_run_config(run_dir)
+    if env_cfg.get("impl", "jax") != "jax":
+        env_cfg = apply_overrides(env_cfg, ["impl=jax"])
     env = make_env(env_cfg)
     path = checkpoint or latest_checkpoint(run_dir)[0]
     params = load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)

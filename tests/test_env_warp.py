@@ -1,0 +1,172 @@
+"""The environments on MJX's Warp implementation (env.impl="warp"), against MuJoCo C on the same
+model: a control step from the env's reset, with a nominal and with a randomized model per world;
+the feet's contact sensors against MuJoCo C's contact list; the buffers Warp is given, counted by
+hand; a batch larger than they were sized for refused in one line."""
+
+import copy
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import env_config
+from quadson_mjx.env_model import warp_buffers
+from quadson_mjx.wrappers import wrap_for_evaluation
+
+WORLDS = 2  # stepped
+MAX_WORLDS = 8  # what the env's buffers hold
+# The constraint solver runs ITERATIONS iterations here (training: 1, which does not converge, so
+# the two implementations' orders of operation would show, not their physics): one control step (5
+# physics steps) against MuJoCo C from the same state and targets within these (C runs float64,
+# MJX float32).
+ITERATIONS = 20
+JOINT_TOL_RAD, BASE_TOL_M = 0.005, 5e-4
+
+
+def _cfg(*overrides):
+    cfg = env_config(terrain="flat", base_terrain_contact=False)
+    return apply_overrides(
+        cfg, ["impl=warp", f"warp_max_worlds={MAX_WORLDS}", f"solver_iterations={ITERATIONS}", *overrides]
+    )
+
+
+@pytest.fixture(scope="session")
+def warp_env():
+    return LocomotionEnv(_cfg())
+
+
+@pytest.fixture(scope="session")
+def warp_step(warp_env):
+    """(reset state, stepped state, action) of WORLDS worlds, jitted and vmapped as in training."""
+    env = warp_env
+    s0 = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), WORLDS))
+    action = 0.5 * jax.random.normal(jax.random.PRNGKey(1), (WORLDS, env.action_size))
+    s1 = jax.jit(jax.vmap(env.step))(s0, action)
+    return s0, s1
+
+
+def _c_step(m: mujoco.MjModel, s0, s1, w: int) -> mujoco.MjData:
+    """MuJoCo C through the control step of world w: the env's substeps, the previous targets during
+    its latency, then the new ones."""
+    d = mujoco.MjData(m)
+    d.qpos[:] = np.asarray(s0.pipeline_state.qpos[w], np.float64)
+    d.qvel[:] = np.asarray(s0.pipeline_state.qvel[w], np.float64)
+    latency = int(s0.info["latency_steps"][w])
+    n_sub = round(0.02 / m.opt.timestep)
+    for i in range(n_sub):
+        src = s0.info["last_ctrl"] if i < latency else s1.pipeline_state.ctrl
+        d.ctrl[:] = np.asarray(src[w], np.float64)
+        mujoco.mj_step(m, d)
+    return d
+
+
+def _feet_touching(m: mujoco.MjModel, d: mujoco.MjData, feet: np.ndarray) -> np.ndarray:
+    """(4,) bool: MuJoCo C's contact list has the foot geom with a negative distance."""
+    out = np.zeros(len(feet), bool)
+    for c in d.contact[: d.ncon]:
+        for k, g in enumerate(feet):
+            if g in (c.geom1, c.geom2) and c.dist < 0:
+                out[k] = True
+    return out
+
+
+def test_a_control_step_under_warp_matches_mujoco_c(warp_env, warp_step):
+    s0, s1 = warp_step
+    m = warp_env.mj_model
+    assert np.all(np.isfinite(np.asarray(s1.pipeline_state.qpos)))
+    moved = np.abs(np.asarray(s1.pipeline_state.qpos - s0.pipeline_state.qpos)).max()
+    assert moved > 0.01  # the targets moved the legs: the comparison is not of two robots at rest
+    for w in range(WORLDS):
+        d = _c_step(m, s0, s1, w)
+        q = np.asarray(s1.pipeline_state.qpos[w], np.float64)
+        assert np.abs(q[:3] - d.qpos[:3]).max() < BASE_TOL_M
+        assert np.abs(q[7:] - d.qpos[7:]).max() < JOINT_TOL_RAD
+
+
+def test_the_feet_contact_sensors_agree_with_mujoco_c_contact_list(warp_env):
+    """Random base heights and tilts over the plane, some feet down and some up: the env's
+    foot_contact under Warp (its contact sensors after a forward pass) against MuJoCo C's contacts."""
+    env, m = warp_env, warp_env.mj_model
+    rng = np.random.default_rng(3)
+    n = MAX_WORLDS
+    qpos = np.tile(m.key_qpos[0], (n, 1))
+    qpos[:, 2] += rng.uniform(-0.02, 0.02, n)
+    tilt = rng.uniform(-0.15, 0.15, (n, 2))
+    for i in range(n):
+        mujoco.mju_euler2Quat(qpos[i, 3:7], np.array([tilt[i, 0], tilt[i, 1], 0.0]), "xyz")
+    data = jax.vmap(lambda q: env._start(q, jax.random.PRNGKey(0)).pipeline_state)(
+        jnp.asarray(qpos, jnp.float32)
+    )
+    data = jax.jit(jax.vmap(mjx.forward, in_axes=(None, 0)))(env.sys, data)
+    got = np.asarray(jax.vmap(env.foot_contact)(data))
+    feet = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in env.robot.foot_geoms()])
+    d = mujoco.MjData(m)
+    want = []
+    for q in qpos:
+        d.qpos[:] = q
+        mujoco.mj_forward(m, d)
+        want.append(_feet_touching(m, d, feet))
+    want = np.array(want)
+    assert want.any() and not want.all()  # both kinds of foot are in the sample
+    np.testing.assert_array_equal(got, want)
+
+
+def test_a_randomized_model_per_world_under_warp_matches_mujoco_c():
+    """Domain randomization (friction, masses, motor strength, base centre of mass per world) under
+    Warp's batching of model fields: each world's step against MuJoCo C on that world's model."""
+    cfg = _cfg("randomize=True")
+    env = LocomotionEnv(cfg)
+    wrapped = wrap_for_evaluation(env, cfg, WORLDS, seed=5, steps=1)
+    s0 = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(0), WORLDS))
+    action = 0.5 * jax.random.normal(jax.random.PRNGKey(1), (WORLDS, env.action_size))
+    s1 = jax.jit(wrapped.step)(s0, action)
+    dr = wrapped.env.env  # the DomainRandomizationVmapWrapper, holding each world's model
+    fields = (
+        "geom_friction",
+        "body_mass",
+        "body_inertia",
+        "actuator_gainprm",
+        "actuator_biasprm",
+        "actuator_forcerange",
+        "body_ipos",
+    )
+    masses = np.asarray(dr._sys_v.body_mass)
+    assert np.abs(masses[0] - masses[1]).max() > 1e-4  # the worlds' models differ
+    for w in range(WORLDS):
+        m = copy.deepcopy(env.mj_model)
+        for f in fields:
+            getattr(m, f)[:] = np.asarray(getattr(dr._sys_v, f)[w], np.float64)
+        d = _c_step(m, s0, s1, w)
+        q = np.asarray(s1.pipeline_state.qpos[w], np.float64)
+        assert np.abs(q[:3] - d.qpos[:3]).max() < BASE_TOL_M
+        assert np.abs(q[7:] - d.qpos[7:]).max() < JOINT_TOL_RAD
+
+
+# By hand (as tests/test_physics_options.py): per world, each foot sphere meets the plane in 1
+# contact and the base box in up to 4; rows: 4 five-bar closures x 3 = 12, 12 limited motor joints,
+# 4 rows per pyramidal condim-3 contact.
+@pytest.mark.parametrize(
+    ("base_contact", "contacts", "rows"),
+    [(False, 4, 12 + 12 + 4 * 4), (True, 4 + 4, 12 + 12 + 8 * 4)],
+)
+def test_warp_buffers_counted_by_hand(base_contact, contacts, rows):
+    from quadson_mjx.env_model import training_model
+    from quadson_mjx.robots import get_robot
+
+    cfg = apply_overrides(env_config(base_terrain_contact=base_contact), ["impl=warp"])
+    m = training_model(get_robot("quadson"), cfg)
+    assert warp_buffers(m, 1000) == (contacts * 1000, rows)
+    # the model's only sensors: one contact sensor per foot, against the floor
+    assert m.nsensor == 4 and set(m.sensor_type.tolist()) == {int(mujoco.mjtSensor.mjSENS_CONTACT)}
+    assert not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_SENSOR
+
+
+def test_a_batch_larger_than_the_buffers_is_refused_in_one_line(warp_env):
+    wrapped = wrap_for_evaluation(warp_env, warp_env.config, MAX_WORLDS + 1, seed=0, steps=1)
+    with pytest.raises(ValueError, match=r"^9 worlds in one batch, but env.warp_max_worlds is 8 .*>= 9$"):
+        wrapped.reset(jax.random.split(jax.random.PRNGKey(0), MAX_WORLDS + 1))
