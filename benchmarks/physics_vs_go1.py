@@ -244,7 +244,9 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
-    p.add_argument("--robots", nargs="+", default=["quadson"], choices=list(ROBOT_NAMES))
+    p.add_argument(
+        "--robots", nargs="*", default=["quadson"], choices=list(ROBOT_NAMES), help="none: Go1 only"
+    )
     p.add_argument(
         "--fivebar-models",
         nargs="+",
@@ -275,7 +277,7 @@ def main(argv=None):
             for n in args.envs:
                 out = physics_only(
                     m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats, sensors == "read",
-                    **_warp_sizes(m, impl),
+                    impl=impl, **_warp_sizes(m, impl),
                 )  # fmt: skip
                 record(
                     {"robot": "go1_feetonly", "setting": f"sensors_{sensors}", "impl": impl, "envs": n, **out}

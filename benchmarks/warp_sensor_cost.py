@@ -1,0 +1,44 @@
+"""What the feet's contact sensors cost under MJX's Warp implementation: the main job's model as the
+environment builds it for Warp (env_model.training_model: four contact sensors; feet-only ground
+contact, no joint-limit rows, as the main job) against the same model with sensors disabled, bare physics (physics_vs_go1.physics_only:
+5 physics steps per 0.02 s control step, noisy targets around home, the sensors read every control
+step), one run.
+
+    python benchmarks/warp_sensor_cost.py --envs 8192 32768 | tee benchmarks/results/warp_sensor_cost_h100.log
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import mujoco
+from physics_vs_go1 import physics_only
+
+from quadson_mjx import tasks
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env_model import training_model, warp_buffers
+from quadson_mjx.robots import get_robot
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--envs", type=int, nargs="+", default=[8192, 32768])
+    p.add_argument("--steps", type=int, default=100)
+    p.add_argument("--repeats", type=int, default=2)
+    args = p.parse_args(argv)
+    cfg = apply_overrides(tasks.config_from_flags(), ["impl=warp", "base_terrain_contact=false"])
+    for label in ("4 contact sensors", "sensors disabled"):
+        m = training_model(get_robot("quadson"), cfg)
+        if label == "sensors disabled":
+            m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        contacts, rows = warp_buffers(m, 1)
+        for n in args.envs:
+            out = physics_only(
+                m, m.key_qpos[0], m.key_ctrl[0], n, args.steps, args.repeats, True,
+                impl="warp", contacts_per_world=contacts, njmax=rows,
+            )  # fmt: skip
+            print(f"{label} | {n} | {out['physics_steps_per_s']:,.0f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
