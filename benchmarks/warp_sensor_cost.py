@@ -4,7 +4,9 @@ contact, no joint-limit rows, as the main job) against the same model with senso
 5 physics steps per 0.02 s control step, noisy targets around home, the sensors read every control
 step), one run.
 
-    python benchmarks/warp_sensor_cost.py --envs 8192 32768 | tee benchmarks/results/warp_sensor_cost_h100.log
+    python benchmarks/warp_sensor_cost.py --envs 8192 32768 [--terrain flat rough] | tee benchmarks/results/warp_sensor_cost_h100.log
+
+--terrain rough: the same on the stone field (the robot standing at home, off its flat patch).
 """
 
 from __future__ import annotations
@@ -25,9 +27,10 @@ def main(argv=None):
     p.add_argument("--envs", type=int, nargs="+", default=[8192, 32768])
     p.add_argument("--steps", type=int, default=100)
     p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--terrain", nargs="+", default=["flat"], choices=["flat", "rough"])
     args = p.parse_args(argv)
-    cfg = apply_overrides(tasks.config_from_flags(), ["impl=warp", "base_terrain_contact=false"])
-    for label in ("4 contact sensors", "sensors disabled"):
+    for terrain, label in ((t, s) for t in args.terrain for s in ("4 contact sensors", "sensors disabled")):
+        cfg = apply_overrides(tasks.config_from_flags(), ["impl=warp", f"terrain={terrain}"])
         m = training_model(get_robot("quadson"), cfg)
         if label == "sensors disabled":
             m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
@@ -37,7 +40,10 @@ def main(argv=None):
                 m, m.key_qpos[0], m.key_ctrl[0], n, args.steps, args.repeats, True,
                 impl="warp", contacts_per_world=contacts, njmax=rows,
             )  # fmt: skip
-            print(f"{label} | {n} | {out['physics_steps_per_s']:,.0f}", flush=True)
+            print(
+                f"{terrain} | {label} | {n} | {out['physics_steps_per_s']:,.0f} | overflow {out.get('overflow')}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -175,6 +175,12 @@ def check_env_impl(impl: str) -> None:
         warp_notice.require_warp()
 
 
+# How Warp's foreign calls replay their CUDA graphs (mujoco.mjx.warp.types.GraphMode): "WARP" captures
+# one graph per set of buffer addresses, "WARP_STAGED" one per call site, copying the inputs into
+# staging buffers first.
+WARP_GRAPH_MODE = "WARP"
+
+
 def put_model(m: mujoco.MjModel, impl: str):
     """mjx.put_model with the config's implementation; "warp" needs warp-lang (mujoco.mjx carries
     its own MuJoCo Warp), and its import error is reported here, where it matters, not at every
@@ -183,8 +189,9 @@ def put_model(m: mujoco.MjModel, impl: str):
         return mjx.put_model(m, impl=impl)
     warp_notice.require_warp()
     from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
+    from mujoco.mjx.warp.types import GraphMode
 
-    mx = mjx.put_model(m, impl=impl)
+    mx = mjx.put_model(m, impl=impl, graph_mode=getattr(GraphMode, WARP_GRAPH_MODE))
     # Our models run one constraint-solver iteration on purpose (as Playground's Go1 does), which
     # Warp reports as a limit reached at every step; its other overflow warnings (contacts,
     # constraint rows, height field) stay on.

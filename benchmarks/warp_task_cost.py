@@ -1,0 +1,131 @@
+"""Where the joystick task's time goes on each MJX implementation: the whole environment (gait, IK,
+physics, reward, observation, the training wrappers with domain randomization and auto-reset) of
+`--task QuadsonJoystickRough --env.obs_history=3`, stepped under random actions as PPO's rollouts
+step it, on JAX and on Warp, with one part of the task taken away at a time.
+
+    python benchmarks/warp_task_cost.py --envs 8192 --out benchmarks/results/warp_task_cost_h100.json
+
+Variants (env overrides on the task): "task" as it trains; "no_randomize" (randomize=false: one
+nominal model for all worlds, no sensor errors); "no_pushes"; "flat" (terrain=flat instead of the
+stone field); "flat_no_randomize" both. `--task main` measures the main job's env instead (flat, no
+randomization or pushes: the variants that add those do not apply), `--bare` the env's vmapped
+step without the training wrappers. Each: one jitted lax.scan of --steps control steps, compiled once, best of --repeats.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import types
+from pathlib import Path
+
+import jax
+from physics_vs_go1 import run_meta
+
+from quadson_mjx import env_model, tasks
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.envs import make_env
+from quadson_mjx.wrappers import wrap_for_evaluation
+
+VARIANTS = {
+    "task": [],
+    "no_randomize": ["randomize=false"],
+    "no_pushes": ["pushes=false"],
+    "flat": ["terrain=flat"],
+    "flat_no_randomize": ["terrain=flat", "randomize=false"],
+}
+
+
+def steps_per_s(cfg, n: int, steps: int, repeats: int, bare: bool = False) -> tuple[float, float]:
+    """-> (env steps/s, compile + first run [s]) of n worlds in the training wrappers (bare: the
+    env's own step, vmapped, without them)."""
+    env = make_env(cfg)
+    if bare:
+        w = types.SimpleNamespace(reset=jax.vmap(env.reset), step=jax.vmap(env.step))
+    else:
+        w = wrap_for_evaluation(env, cfg, n, seed=0, steps=env.episode_length)
+    state = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(0), n))
+
+    @jax.jit
+    def rollout(state, key):
+        def body(s, k):
+            a = jax.random.uniform(k, (n, env.action_size), minval=-1.0, maxval=1.0)
+            return w.step(s, a), None
+
+        state, _ = jax.lax.scan(body, state, jax.random.split(key, steps))
+        return state.obs
+
+    t0 = time.perf_counter()
+    jax.block_until_ready(rollout(state, jax.random.PRNGKey(1)))
+    first = time.perf_counter() - t0
+    best = float("inf")
+    for r in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(rollout(state, jax.random.PRNGKey(2 + r)))
+        best = min(best, time.perf_counter() - t)
+    return n * steps / best, first
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--envs", type=int, nargs="+", default=[8192])
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    p.add_argument("--impls", nargs="+", default=["jax", "warp"], choices=["jax", "warp"])
+    p.add_argument(
+        "--task", choices=["joystick", "main"], default="joystick",
+        help="the joystick task (QuadsonJoystickRough, obs_history=3) or the main job's env",
+    )  # fmt: skip
+    p.add_argument("--bare", action="store_true", help="the env's vmapped step without the training wrappers")
+    p.add_argument(
+        "--graph-mode", default=env_model.WARP_GRAPH_MODE, choices=["WARP", "WARP_STAGED"],
+        help="how Warp's foreign calls replay their CUDA graphs (env_model.WARP_GRAPH_MODE)",
+    )  # fmt: skip
+    p.add_argument("--out", default=None)
+    args = p.parse_args(argv)
+    env_model.WARP_GRAPH_MODE = args.graph_mode
+    meta = run_meta(args)
+    print(f"# {meta}", flush=True)
+    rows = []
+    for variant in args.variants:
+        for impl in args.impls:
+            if args.task == "main":
+                base = tasks.config_from_flags()
+            else:
+                base = apply_overrides(tasks.make_task_config("QuadsonJoystickRough"), ["obs_history=3"])
+            cfg = apply_overrides(
+                base, [*VARIANTS[variant], f"impl={impl}", f"warp_max_worlds={max(args.envs)}"]
+            )
+            for n in args.envs:
+                sps, first = steps_per_s(cfg, n, args.steps, args.repeats, args.bare)
+                row = {
+                    "task": args.task,
+                    "bare": args.bare,
+                    "graph_mode": args.graph_mode if impl == "warp" else None,
+                    "variant": variant,
+                    "impl": impl,
+                    "envs": n,
+                    "env_steps_per_s": sps,
+                    "compile_s": first,
+                }
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+                if args.out:
+                    Path(args.out).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    print(f"\ndevice: {meta['device']}; {args.steps} control steps per timing")
+    print("| variant | worlds | JAX (env steps/s) | Warp | Warp / JAX |")
+    print("|---|---:|---:|---:|---:|")
+    for variant in args.variants:
+        for n in args.envs:
+            got = {
+                r["impl"]: r["env_steps_per_s"] for r in rows if r["variant"] == variant and r["envs"] == n
+            }
+            ratio = f"{got['warp'] / got['jax']:.2f}" if len(got) == 2 else "-"
+            cells = " | ".join(f"{got[i]:,.0f}" if i in got else "-" for i in ("jax", "warp"))
+            print(f"| {variant} | {n} | {cells} | {ratio} |")
+
+
+if __name__ == "__main__":
+    main()
