@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 import types
 from pathlib import Path
 
 import jax
-from physics_vs_go1 import run_meta
+from physics_vs_go1 import _best_time, run_meta
 
 from quadson_mjx import env_model, tasks
 from quadson_mjx.config import apply_overrides
@@ -56,14 +55,7 @@ def steps_per_s(cfg, n: int, steps: int, repeats: int, bare: bool = False) -> tu
         state, _ = jax.lax.scan(body, state, jax.random.split(key, steps))
         return state.obs
 
-    t0 = time.perf_counter()
-    jax.block_until_ready(rollout(state, jax.random.PRNGKey(1)))
-    first = time.perf_counter() - t0
-    best = float("inf")
-    for r in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(rollout(state, jax.random.PRNGKey(2 + r)))
-        best = min(best, time.perf_counter() - t)
+    best, first = _best_time(rollout, (state, jax.random.PRNGKey(1)), repeats)
     return n * steps / best, first
 
 
@@ -78,10 +70,14 @@ def main(argv=None):
         "--task", choices=["joystick", "main"], default="joystick",
         help="the joystick task (QuadsonJoystickRough, obs_history=3) or the main job's env",
     )  # fmt: skip
+    p.add_argument(
+        "--overrides", nargs="*", default=[],
+        help="env config overrides on top of the task and variant (e.g. observation=sensors)",
+    )  # fmt: skip
     p.add_argument("--bare", action="store_true", help="the env's vmapped step without the training wrappers")
     p.add_argument(
-        "--graph-mode", default=env_model.WARP_GRAPH_MODE, choices=["WARP", "WARP_STAGED"],
-        help="how Warp's foreign calls replay their CUDA graphs (env_model.WARP_GRAPH_MODE)",
+        "--graph-mode", default="WARP", choices=["WARP", "WARP_STAGED"],
+        help="how Warp's foreign calls replay their CUDA graphs on a GPU (env_model.WARP_GRAPH_MODE)",
     )  # fmt: skip
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
@@ -96,7 +92,8 @@ def main(argv=None):
             else:
                 base = apply_overrides(tasks.make_task_config("QuadsonJoystickRough"), ["obs_history=3"])
             cfg = apply_overrides(
-                base, [*VARIANTS[variant], f"impl={impl}", f"warp_max_worlds={max(args.envs)}"]
+                base,
+                [*VARIANTS[variant], *args.overrides, f"impl={impl}", f"warp_max_worlds={max(args.envs)}"],
             )
             for n in args.envs:
                 sps, first = steps_per_s(cfg, n, args.steps, args.repeats, args.bare)
@@ -105,6 +102,7 @@ def main(argv=None):
                     "bare": args.bare,
                     "graph_mode": args.graph_mode if impl == "warp" else None,
                     "variant": variant,
+                    "overrides": args.overrides,
                     "impl": impl,
                     "envs": n,
                     "env_steps_per_s": sps,

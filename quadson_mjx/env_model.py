@@ -175,10 +175,11 @@ def check_env_impl(impl: str) -> None:
         warp_notice.require_warp()
 
 
-# How Warp's foreign calls replay their CUDA graphs (mujoco.mjx.warp.types.GraphMode): "WARP" captures
-# one graph per set of buffer addresses, "WARP_STAGED" one per call site, copying the inputs into
-# staging buffers first.
-WARP_GRAPH_MODE = "WARP"
+# How Warp's foreign calls replay their CUDA graphs (a name of mujoco.mjx.warp.types.GraphMode):
+# None, mujoco.mjx's choice ("WARP" on a GPU: one graph per set of buffer addresses; "JAX" on the
+# CPU, the only one there), or e.g. "WARP_STAGED" (one graph per call site, inputs copied into
+# staging buffers first; measured slower on one H100: benchmarks/warp_task_cost.py).
+WARP_GRAPH_MODE: str | None = None
 
 
 def put_model(m: mujoco.MjModel, impl: str):
@@ -191,7 +192,8 @@ def put_model(m: mujoco.MjModel, impl: str):
     from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
     from mujoco.mjx.warp.types import GraphMode
 
-    mx = mjx.put_model(m, impl=impl, graph_mode=getattr(GraphMode, WARP_GRAPH_MODE))
+    mode = None if WARP_GRAPH_MODE is None else getattr(GraphMode, WARP_GRAPH_MODE)
+    mx = mjx.put_model(m, impl=impl, graph_mode=mode)
     # Our models run one constraint-solver iteration on purpose (as Playground's Go1 does), which
     # Warp reports as a limit reached at every step; its other overflow warnings (contacts,
     # constraint rows, height field) stay on.
