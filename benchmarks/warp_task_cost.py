@@ -76,8 +76,9 @@ def main(argv=None):
     )  # fmt: skip
     p.add_argument("--bare", action="store_true", help="the env's vmapped step without the training wrappers")
     p.add_argument(
-        "--graph-mode", default="WARP", choices=["WARP", "WARP_STAGED"],
-        help="how Warp's foreign calls replay their CUDA graphs on a GPU (env_model.WARP_GRAPH_MODE)",
+        "--graph-mode", default=None, choices=["WARP", "WARP_STAGED"],
+        help="how Warp's foreign calls replay their CUDA graphs on a GPU (env_model.WARP_GRAPH_MODE; "
+        "default mujoco.mjx's choice: WARP on a GPU)",
     )  # fmt: skip
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
@@ -100,7 +101,7 @@ def main(argv=None):
                 row = {
                     "task": args.task,
                     "bare": args.bare,
-                    "graph_mode": args.graph_mode if impl == "warp" else None,
+                    "graph_mode": (args.graph_mode or "mjx default") if impl == "warp" else None,
                     "variant": variant,
                     "overrides": args.overrides,
                     "impl": impl,

@@ -37,7 +37,6 @@ from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_
 from quadson_mjx.env_model import (
     BASE_GEOM,
     base_bottom_points,
-    check_env_impl,
     home_contact_points,
     make_env_data,
     name_ids,
@@ -94,7 +93,6 @@ class LocomotionEnv(Env):
         check_env_config(cfg)
         self._config = freeze(cfg)
         self._robot = robot = get_robot(cfg.robot)
-        check_env_impl(cfg.impl)
         self._mj_model = training_model(robot, cfg)
         self.sys = put_model(self._mj_model, cfg.impl)
         self._field = terrain.heightfield(self._mj_model)
