@@ -383,22 +383,10 @@ class LocomotionEnv(Env):
         action = jnp.clip(action, -1.0, 1.0)
         ctrl, ik_invalid, cycle_s, targets = self._motor_targets(info, action)
 
-        def substep(data, i):
-            c = jnp.where(i < info["latency_steps"], info["last_ctrl"], ctrl)
-            data = mjx.step(self.sys, data.replace(ctrl=c))
-            return data, ((data.qpos, data.qvel) if self._sensor_obs else None)
-
         data = state.pipeline_state
         if cfg.pushes:
             data, info = self._maybe_push(data, info)
-        start = (data.qpos, data.qvel)
-        data, path = jax.lax.scan(substep, data, jnp.arange(self._n_substeps))
-        sensed = None
-        if self._sensor_obs:  # the readings are sensor_latency_steps physics steps old
-            qpos_path = jnp.concatenate([start[0][None], path[0]])  # (n_sub + 1, nq)
-            qvel_path = jnp.concatenate([start[1][None], path[1]])
-            age = jnp.clip(info["sensor_latency_steps"], 0, self._n_substeps)
-            sensed = (qpos_path[self._n_substeps - age], qvel_path[self._n_substeps - age])
+        data, sensed = self._physics_steps(data, info, ctrl, self._sensor_obs)
 
         info["gait_progress"] = jnp.mod(info["gait_progress"] + self._ctrl_dt / cycle_s, 1.0)
         info["episode_time"] = info["episode_time"] + self._ctrl_dt
@@ -505,6 +493,29 @@ class LocomotionEnv(Env):
         angles, valid = self._robot.motor_targets(targets)  # (4, 3), (4,)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles.reshape(12))
         return ctrl, jnp.sum(~valid), params.cycle_s, targets
+
+    def _physics_steps(self, data, info, ctrl, read_sensors, physics_step=None):
+        """-> (data after the control step's physics steps, sensed). The first latency_steps steps
+        hold info["last_ctrl"], the rest ctrl. sensed: (qpos, qvel) as the "sensors" observation
+        reads them, sensor_latency_steps physics steps before the step's end (None unless
+        read_sensors). physics_step(data, ctrl) -> data: one physics step (default mjx.step).
+        The reading rides in the scan's carry, not in a stacked per-step output: under Warp,
+        stacking the data's fields per step halved the env's rate."""
+        physics_step = physics_step or (lambda d, c: mjx.step(self.sys, d.replace(ctrl=c)))
+        read = self._n_substeps - jnp.clip(info.get("sensor_latency_steps", 0), 0, self._n_substeps)
+
+        def substep(carry, i):
+            data, sensed = carry
+            data = physics_step(data, jnp.where(i < info["latency_steps"], info["last_ctrl"], ctrl))
+            if sensed is not None:  # physics step `read` of the scan (0: the state before the first)
+                sensed = jax.tree.map(
+                    lambda new, old: jnp.where(i + 1 == read, new, old), (data.qpos, data.qvel), sensed
+                )
+            return (data, sensed), None
+
+        sensed = (data.qpos, data.qvel) if read_sensors else None
+        (data, sensed), _ = jax.lax.scan(substep, (data, sensed), jnp.arange(self._n_substeps))
+        return data, sensed
 
     def foot_contact(self, data) -> jax.Array:
         """(4,) bool, LEGS order: the foot's collision sphere touches the ground (a contact of that

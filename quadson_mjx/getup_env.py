@@ -198,8 +198,7 @@ class GetupEnv(LocomotionEnv):
         angles, guarded = self.motor_targets(action)
         ctrl = self._home_ctrl.at[self._actuator_of_motor].set(angles)
 
-        def substep(data, i):
-            c = jnp.where(i < info["latency_steps"], info["last_ctrl"], ctrl)
+        def physics_step(data, c):
             sys = self.sys
             if cfg.getup.servo_speed_limit:  # static: the servos' torque-speed line at this step's speed
                 act = self._actuator_of_motor
@@ -207,16 +206,9 @@ class GetupEnv(LocomotionEnv):
                     sys.actuator_forcerange[act], data.qvel[self._motor_dof], C.MOTOR_VELOCITY_LIMIT
                 )
                 sys = sys.replace(actuator_forcerange=sys.actuator_forcerange.at[act].set(fr))
-            data = mjx.step(sys, data.replace(ctrl=c))
-            return data, (data.qpos, data.qvel)
+            return mjx.step(sys, data.replace(ctrl=c))
 
-        data = state.pipeline_state
-        start = (data.qpos, data.qvel)
-        data, path = jax.lax.scan(substep, data, jnp.arange(self._n_substeps))
-        qpos_path = jnp.concatenate([start[0][None], path[0]])  # the sensors read an older state
-        qvel_path = jnp.concatenate([start[1][None], path[1]])
-        age = jnp.clip(info["sensor_latency_steps"], 0, self._n_substeps)
-        sensed = (qpos_path[self._n_substeps - age], qvel_path[self._n_substeps - age])
+        data, sensed = self._physics_steps(state.pipeline_state, info, ctrl, True, physics_step)
 
         t = info["episode_time"] + self._ctrl_dt
         info["episode_time"] = t

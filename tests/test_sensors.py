@@ -162,3 +162,23 @@ def test_env_sensor_observation_reads_the_previous_tick(sensor_env):
     np.testing.assert_allclose(c2["sensor_model"][-1], 0.02, atol=1e-6)
     for x in jax.tree.leaves(s2.obs):
         assert x.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(x)))
+
+
+def test_env_sensor_observation_reads_mid_step(sensor_env):
+    """Readings 2 physics steps old: the observation after a control step reads the state of its
+    third physics step of five, checked against three mjx.step calls from the step's start."""
+    from mujoco import mjx
+
+    env, reset, step = sensor_env
+    s1 = step(reset(jax.random.PRNGKey(1)), jnp.full(12, 0.3))
+    info = dict(s1.info, sensor_latency_steps=jnp.asarray(2, jnp.int32), latency_steps=jnp.asarray(0, jnp.int32))
+    s2 = step(s1.replace(info=info), jnp.full(12, -0.3))
+    physics = jax.jit(lambda d, c: mjx.step(env.sys, d.replace(ctrl=c)))
+    data, gravity = s1.pipeline_state, []
+    for _ in range(env._n_substeps):
+        data = physics(data, s2.info["last_ctrl"])
+        gravity.append(np.asarray(sensors.gravity_direction(data.qpos[3:7])))
+    np.testing.assert_allclose(gravity[-1], sensors.gravity_direction(s2.pipeline_state.qpos[3:7]), atol=1e-6)
+    got = env.obs_spec.split(s2.obs["state"])["gravity"]
+    np.testing.assert_allclose(got, gravity[2], atol=1e-6)  # physics step 3 of 5
+    assert min(np.abs(got - gravity[i]).max() for i in (1, 3)) > 1e-5  # its neighbours differ
