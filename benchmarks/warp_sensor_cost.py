@@ -1,6 +1,7 @@
 """What the feet's contact sensors cost under MJX's Warp implementation: the main job's model as the
-environment builds it for Warp (env_model.training_model: four contact sensors; feet-only ground
-contact, no joint-limit rows, as the main job) against the same model with sensors disabled, bare physics (physics_vs_go1.physics_only:
+environment builds it for Warp on the stones (env_model.training_model: four contact sensors;
+feet-only ground contact, no joint-limit rows, as the main job; on the flat scene the env now tells
+contact from the feet's height instead, env_model.feet_on_plane) against the same model with its sensors disabled, bare physics (physics_vs_go1.physics_only:
 5 physics steps per 0.02 s control step, noisy targets around home, the sensors read every control
 step), one run.
 
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 
-import mujoco
 from physics_vs_go1 import physics_only
 
 from quadson_mjx import tasks
@@ -31,9 +31,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     for terrain, label in ((t, s) for t in args.terrain for s in ("4 contact sensors", "sensors disabled")):
         cfg = apply_overrides(tasks.config_from_flags(), ["impl=warp", f"terrain={terrain}"])
-        m = training_model(get_robot("quadson"), cfg)
-        if label == "sensors disabled":
-            m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        m = training_model(get_robot("quadson"), cfg, contact_sensors=label == "4 contact sensors")
         contacts, rows = warp_buffers(m, 1)
         for n in args.envs:
             out = physics_only(

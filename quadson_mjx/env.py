@@ -37,6 +37,8 @@ from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_
 from quadson_mjx.env_model import (
     BASE_GEOM,
     base_bottom_points,
+    check_floor_plane,
+    feet_on_plane,
     home_contact_points,
     make_env_data,
     name_ids,
@@ -160,11 +162,15 @@ class LocomotionEnv(Env):
         self._seed_speed = float(gait.seed_speed(self._gait))
         self._forward_target = self._seed_speed if cfg.reward.target_gait_speed else cfg.reward.forward_target
         self._foot_geoms = jnp.asarray(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
-        self._warp_buffers, self._foot_sensors = None, None
+        self._warp_buffers, self._foot_sensors, self._feet_on_plane = None, None, False
         if cfg.impl == "warp":
             self._warp_buffers = warp_buffers(m, cfg.warp_max_worlds)
-            sensors = name_ids(m, mujoco.mjtObj.mjOBJ_SENSOR, [f"{g}_ground" for g in robot.foot_geoms()])
-            self._foot_sensors = jnp.asarray(m.sensor_adr[sensors])
+            self._feet_on_plane = feet_on_plane(cfg)
+            if self._feet_on_plane:
+                check_floor_plane(m)
+            else:
+                sensors = name_ids(m, mujoco.mjtObj.mjOBJ_SENSOR, [f"{g}_ground" for g in robot.foot_geoms()])
+                self._foot_sensors = jnp.asarray(m.sensor_adr[sensors])
         # nominal values the privileged observation divides the randomized model's by
         self._foot_radius = jnp.asarray(m.geom_size[np.asarray(self._foot_geoms), 0])
         self._nominal_base_mass = float(m.body_mass[self._base_body])
@@ -521,8 +527,13 @@ class LocomotionEnv(Env):
         """(4,) bool, LEGS order: the foot's collision sphere touches the ground (a contact of that
         geom with negative distance; the model has no contact margin). After mjx.step these are the
         contacts of the last physics substep's start (MuJoCo detects contacts before it integrates),
-        one timestep (4 ms) before the control step's end. Under Warp: the feet's contact sensors
-        (env_model.foot_contact_sensors), evaluated at the same point of the step."""
+        one timestep (4 ms) before the control step's end. Under Warp, whose contact list is shared
+        by all worlds, at the same point of the step: on the plane, the foot sphere's centre less
+        its (possibly randomized) radius below z = 0, MuJoCo's sphere-plane distance
+        (env_model.feet_on_plane); elsewhere the feet's contact sensors (foot_contact_sensors)."""
+        if self._feet_on_plane:
+            feet = self._foot_geoms
+            return data.geom_xpos[feet, 2] - self.sys.geom_size[feet, 0] < 0.0
         if self._foot_sensors is not None:
             return data.sensordata[self._foot_sensors] > 0.0
         c = data._impl.contact

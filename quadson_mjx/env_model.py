@@ -4,8 +4,8 @@
 and applies what the config chooses for
 speed (no sensor evaluation, feet-only ground contact, no joint-limit rows) and the solver options
 (cone, solver, mass-matrix storage); `put_model` hands it to MJX with the chosen implementation.
-Under MJX's Warp implementation the feet's contacts come from contact sensors
-(`foot_contact_sensors`), its buffers are sized by `warp_buffers` and the reset's data is built
+Under MJX's Warp implementation the feet's contacts come from their height over the plane on the
+flat scene (`feet_on_plane`), else from contact sensors (`foot_contact_sensors`); its buffers are sized by `warp_buffers` and the reset's data is built
 from the MjModel (`make_env_data`).
 `name_ids` looks names up once (Python never hard-codes a model index).
 """
@@ -38,22 +38,25 @@ def name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray
     return ids
 
 
-def training_model(robot, cfg) -> mujoco.MjModel:
-    """robot: quadson_mjx.robots.Robot; cfg: an env config -> a fresh MjModel of its terrain's scene."""
+def training_model(robot, cfg, contact_sensors: bool | None = None) -> mujoco.MjModel:
+    """robot: quadson_mjx.robots.Robot; cfg: an env config -> a fresh MjModel of its terrain's scene.
+    contact_sensors: the feet's contact sensors in place of the model's sensors (default: under
+    Warp, off the plane; see feet_on_plane)."""
     variant = cfg.get("fivebar_model", "full")
     warp = cfg.get("impl", "jax") == "warp"
+    sensed_feet = (warp and not feet_on_plane(cfg)) if contact_sensors is None else contact_sensors
     spec = None
     if cfg.terrain == "tiles":
         spec = tiles_spec(robot, variant, tile_spec(cfg))
-    elif warp:
+    elif sensed_feet:
         spec = mujoco.MjSpec.from_file(str(robot.scene_path(cfg.terrain, variant)))
-    if warp:
+    if sensed_feet:
         foot_contact_sensors(spec, robot)
     m = robot.load_model(cfg.terrain, variant) if spec is None else spec.compile()
     # Observations and rewards read qpos/qvel directly, so MJX need not evaluate the sensors
     # (measured on one H100: ~7% of a physics step). Rollouts that log sensors use their own model.
-    # Under Warp the only sensors are the feet's contact sensors (foot_contact_sensors).
-    if not warp:
+    # Under Warp off the plane the only sensors are the feet's contact sensors (foot_contact_sensors).
+    if not sensed_feet:
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
     if not cfg.base_terrain_contact:
         base_geom = int(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, [BASE_GEOM])[0])
@@ -70,6 +73,22 @@ def training_model(robot, cfg) -> mujoco.MjModel:
         m.opt.timestep = float(cfg.sim_dt)
     m.opt.jacobian = JACOBIANS[cfg.jacobian]
     return m
+
+
+def feet_on_plane(cfg) -> bool:
+    """Under MJX's Warp implementation on the flat scene (a plane at z = 0) the env tells a foot's
+    ground contact from the foot sphere's height (LocomotionEnv.foot_contact), the same test as
+    MuJoCo's sphere-plane collision; the contact sensors it needs elsewhere cost 11-12 % of Warp's
+    physics (benchmarks/warp_sensor_cost.py)."""
+    return cfg.get("impl", "jax") == "warp" and cfg.terrain == "flat"
+
+
+def check_floor_plane(m: mujoco.MjModel) -> None:
+    """ValueError unless the floor is an unrotated plane at z = 0 (what feet_on_plane assumes)."""
+    g = int(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, [FLOOR_GEOM])[0])
+    plane = m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE
+    if not (plane and m.geom_pos[g][2] == 0.0 and np.allclose(m.geom_quat[g], (1, 0, 0, 0))):
+        raise ValueError(f"the flat scene's {FLOOR_GEOM!r} geom must be an unrotated plane at z = 0")
 
 
 def foot_contact_sensors(spec: mujoco.MjSpec, robot) -> None:

@@ -1,6 +1,7 @@
 """The environments on MJX's Warp implementation (env.impl="warp"), against MuJoCo C on the same
 model: a control step from the env's reset, with a nominal and with a randomized model per world;
-the feet's contact sensors against MuJoCo C's contact list; the buffers Warp is given, counted by
+the feet's ground contact (their height over the plane; contact sensors on the stones) against
+MuJoCo C's contact list; the buffers Warp is given, counted by
 hand; a batch larger than they were sized for refused in one line."""
 
 import copy
@@ -88,13 +89,26 @@ def test_a_control_step_under_warp_matches_mujoco_c(warp_env, warp_step):
         assert np.abs(q[7:] - d.qpos[7:]).max() < JOINT_TOL_RAD
 
 
-def test_the_feet_contact_sensors_agree_with_mujoco_c_contact_list(warp_env):
-    """Random base heights and tilts over the plane, some feet down and some up: the env's
-    foot_contact under Warp (its contact sensors after a forward pass) against MuJoCo C's contacts."""
-    env, m = warp_env, warp_env.mj_model
+@pytest.fixture(scope="session")
+def warp_env_rough():
+    return LocomotionEnv(_cfg("terrain=rough"))
+
+
+@pytest.mark.parametrize("terrain", ["flat", "rough"])
+def test_the_feet_contact_agrees_with_mujoco_c_contact_list(warp_env, warp_env_rough, terrain):
+    """Random base positions, heights and tilts over the ground, some feet down and some up: the
+    env's foot_contact under Warp after a forward pass (flat: the feet's height over the plane;
+    stones: the feet's contact sensors) against MuJoCo C's contact list on the same model."""
+    env = warp_env if terrain == "flat" else warp_env_rough
+    m = env.mj_model
+    sensors_on = not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_SENSOR
+    assert sensors_on == (terrain == "rough")  # the plane needs no sensor
     rng = np.random.default_rng(3)
     n = MAX_WORLDS
     qpos = np.tile(m.key_qpos[0], (n, 1))
+    if terrain == "rough":  # anywhere on the stones' central metre, the base over the ground there
+        qpos[:, :2] = rng.uniform(-0.5, 0.5, (n, 2))
+        qpos[:, 2] += np.asarray(env.ground_height(jnp.asarray(qpos[:, :2], jnp.float32)))
     qpos[:, 2] += rng.uniform(-0.02, 0.02, n)
     tilt = rng.uniform(-0.15, 0.15, (n, 2))
     for i in range(n):
@@ -161,6 +175,16 @@ def test_warp_buffers_counted_by_hand(base_contact, contacts, rows):
     cfg = apply_overrides(env_config(base_terrain_contact=base_contact), ["impl=warp"])
     m = training_model(get_robot("quadson"), cfg)
     assert warp_buffers(m, 1000) == (contacts * 1000, rows)
+    # on the plane no contact sensor (the feet's height tells their contact), sensors off as under JAX
+    assert mujoco.mjtSensor.mjSENS_CONTACT not in m.sensor_type
+    assert m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_SENSOR
+
+
+def test_warp_on_the_stones_has_the_feet_contact_sensors_only():
+    from quadson_mjx.env_model import training_model
+    from quadson_mjx.robots import get_robot
+
+    m = training_model(get_robot("quadson"), apply_overrides(env_config(terrain="rough"), ["impl=warp"]))
     # the model's only sensors: one contact sensor per foot, against the floor
     assert m.nsensor == 4 and set(m.sensor_type.tolist()) == {int(mujoco.mjtSensor.mjSENS_CONTACT)}
     assert not m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_SENSOR
