@@ -194,6 +194,23 @@ def check_env_impl(impl: str) -> None:
         warp_notice.require_warp()
 
 
+def check_warp_ground(cfg) -> None:
+    """Raises ValueError for the one task MJX's Warp implementation steps wrongly here: the get-up
+    task (base and every leg link colliding) on a height field (stones, tiles). From the task's own
+    drops its worlds turn non-finite within 40 control steps where the JAX implementation's stay
+    finite (its contact buffer not full; on a GPU Warp also reports height-field collision
+    overflow, more than 50 prisms touching one geom): benchmarks/warp_getup_ground.py."""
+    if (
+        cfg.get("impl", "jax") == "warp"
+        and cfg.get("task", "locomotion") == "getup"
+        and cfg.terrain != "flat"
+    ):
+        raise ValueError(
+            f"env.impl=warp cannot run the get-up task on env.terrain={cfg.terrain} (a height field): "
+            "Warp turns its worlds non-finite there (benchmarks/warp_getup_ground.py); use env.impl=jax"
+        )
+
+
 # How Warp's foreign calls replay their CUDA graphs (a name of mujoco.mjx.warp.types.GraphMode):
 # None, mujoco.mjx's choice ("WARP" on a GPU: one graph per set of buffer addresses; "JAX" on the
 # CPU, the only one there), or e.g. "WARP_STAGED" (one graph per call site, inputs copied into

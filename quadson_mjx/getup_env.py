@@ -54,7 +54,7 @@ from mujoco import mjx
 
 from quadson_mjx import obs_spec, rewards, sensors, terrain
 from quadson_mjx.env import EXPLODED_SPEED, LocomotionEnv
-from quadson_mjx.env_model import make_env_data, motoring_forcerange, name_ids
+from quadson_mjx.env_model import check_warp_ground, make_env_data, motoring_forcerange, name_ids
 from quadson_mjx.quat import quat_rotate_inverse
 from quadson_mjx.robots.quadson import chain_guard, getup_start
 from quadson_mjx.robots.quadson import constants as C
@@ -87,6 +87,7 @@ class GetupEnv(LocomotionEnv):
     def __init__(self, config):
         if config.get("task", "locomotion") != "getup":
             raise ValueError("GetupEnv needs an env config with task='getup' (env_config(task='getup'))")
+        check_warp_ground(config)
         super().__init__(config)
         cfg, robot, m = self._config, self._robot, self._mj_model
         self._obs_spec = obs_spec.getup_observation(robot.motor_joints)

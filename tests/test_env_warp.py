@@ -225,3 +225,17 @@ def test_the_getup_task_under_warp_follows_the_jax_implementation():
     assert np.all(np.isfinite(q_warp))
     assert np.abs(q_warp[:, :3] - q_jax[:, :3]).max() < 1e-3
     assert np.abs(q_warp[:, 7:] - q_jax[:, 7:]).max() < 0.03
+
+
+def test_the_getup_task_on_the_stones_is_refused_under_warp():
+    """Worlds turn non-finite there under Warp (benchmarks/warp_getup_ground.py): GetupEnv refuses
+    the config; on flat ground, and under JAX on the stones, the check lets it through."""
+    from quadson_mjx import tasks
+    from quadson_mjx.env_model import check_warp_ground
+    from quadson_mjx.getup_env import GetupEnv
+
+    cfg = apply_overrides(tasks.make_task_config("QuadsonGetupRough"), ["impl=warp"])
+    with pytest.raises(ValueError, match=r"^env.impl=warp cannot run the get-up task on env.terrain=rough"):
+        GetupEnv(cfg)
+    check_warp_ground(apply_overrides(tasks.make_task_config("QuadsonGetupFlat"), ["impl=warp"]))
+    check_warp_ground(apply_overrides(tasks.make_task_config("QuadsonGetupRough"), ["impl=jax"]))

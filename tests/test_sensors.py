@@ -171,7 +171,9 @@ def test_env_sensor_observation_reads_mid_step(sensor_env):
 
     env, reset, step = sensor_env
     s1 = step(reset(jax.random.PRNGKey(1)), jnp.full(12, 0.3))
-    info = dict(s1.info, sensor_latency_steps=jnp.asarray(2, jnp.int32), latency_steps=jnp.asarray(0, jnp.int32))
+    info = dict(
+        s1.info, sensor_latency_steps=jnp.asarray(2, jnp.int32), latency_steps=jnp.asarray(0, jnp.int32)
+    )
     s2 = step(s1.replace(info=info), jnp.full(12, -0.3))
     physics = jax.jit(lambda d, c: mjx.step(env.sys, d.replace(ctrl=c)))
     data, gravity = s1.pipeline_state, []

@@ -206,6 +206,17 @@ def test_regression_warp_batch_larger_than_its_buffers_is_one_line(run_main, tmp
     assert not (tmp_path / "R").exists()
 
 
+def test_regression_warp_getup_on_the_stones_is_one_line(run_main, tmp_path):
+    """The get-up task on a height field under Warp turns worlds non-finite
+    (benchmarks/warp_getup_ground.py): refused in one line before a run directory is made."""
+    status, err = run_main(
+        "--preset", "test", "--run-dir", str(tmp_path / "R"), "--task", "QuadsonGetupRough", "--env.impl=warp"
+    )
+    line = _one_line(err)
+    assert status == 2 and "env.impl=warp cannot run the get-up task on env.terrain=rough" in line
+    assert line.endswith("use env.impl=jax") and not (tmp_path / "R").exists()
+
+
 def test_regression_read_only_run_dir_and_compile_cache_are_one_line(run_main, tmp_path, monkeypatch):
     # As root, chmod does not stop writes: a path below a regular file (ENOTDIR) stands for a
     # place that cannot be written, and os.access answering no for a read-only folder.

@@ -53,11 +53,12 @@ def diverged(where: str, what: list[str], last_good: str) -> TrainingDiverged:
 
 def check_backend(env_cfg, ppo_cfg=None, devices: int = 1) -> None:
     """Raises UsageError when env.impl names an MJX implementation the environments cannot run on
-    here (warp without warp-lang), or, given ppo_cfg, when a batch of the run (ppo.num_envs over
-    `devices`, ppo.num_eval_envs) is more worlds than Warp's contact buffer is sized for
-    (env.warp_max_worlds)."""
+    here (warp without warp-lang) or that steps the task wrongly (env_model.check_warp_ground),
+    or, given ppo_cfg, when a batch of the run (ppo.num_envs over `devices`, ppo.num_eval_envs) is
+    more worlds than Warp's contact buffer is sized for (env.warp_max_worlds)."""
     try:
         env_model.check_env_impl(env_cfg.impl)
+        env_model.check_warp_ground(env_cfg)
     except ValueError as e:
         raise UsageError(str(e)) from None
     if env_cfg.impl != "warp" or ppo_cfg is None:
