@@ -167,7 +167,7 @@ def export_run(
     from quadson_mjx.errors import atomic_write
     from quadson_mjx.export_meta import run_meta
 
-    env_cfg, ppo_cfg = training.load_run_config(run_dir)
+    env_cfg, ppo_cfg = training.load_run_config(run_dir, for_evaluation=True)  # a Warp run: its JAX model
     env = make_env(env_cfg)
     path = Path(checkpoint) if checkpoint else training.latest_checkpoint(run_dir)[0]
     params = training.load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)

@@ -118,6 +118,9 @@ def run_meta(env, ppo_cfg, run_dir: Path, checkpoint: Path) -> dict:
             "actuation_latency_s": list(cfg.randomization.latency_s),
         },
         "model": model_identity(env.robot, cfg),
+        # env_config and model are the run's on MJX's JAX implementation (load_run_config's
+        # for_evaluation); the implementation it trained on:
+        "trained_impl": run_config.get("env", {}).get("impl", "jax"),
         # the training run's versions and commit (config.json), not this machine's
         "provenance": run_config.get("versions", {}),
         "exported_with": versions(),

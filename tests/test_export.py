@@ -3,6 +3,7 @@ to float32 precision; the command line refuses to overwrite and to guess a forma
 
 import hashlib
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -391,3 +392,23 @@ def test_asymmetric_critic_export_uses_the_actors_normaliser_only(tmp_path):
     np.testing.assert_allclose(numpy_policy(obs), want, rtol=1e-5, atol=1e-5)
     loop = deploy.DeployLoop(numpy_policy)  # a sensor-only policy: no velocity input
     assert not loop.needs_lin_vel and loop.config.observation == "sensors"
+
+
+def test_a_run_trained_on_warp_exports_its_jax_model(run_dir, tmp_path):
+    """A run trained with env.impl=warp (its config says so) exports as the same run on JAX would:
+    the same model identity and env_config (the evaluation's physics, no Warp contact sensors),
+    and the file records the implementation it trained on."""
+    warp_run = tmp_path / "warp_run"
+    shutil.copytree(run_dir, warp_run)
+    config = json.loads((warp_run / "config.json").read_text())
+    config["env"].update(impl="warp", terrain="rough")  # on the stones Warp's model has contact sensors
+    (warp_run / "config.json").write_text(json.dumps(config))
+    jax_run = tmp_path / "jax_run"
+    shutil.copytree(warp_run, jax_run)
+    config["env"]["impl"] = "jax"
+    (jax_run / "config.json").write_text(json.dumps(config))
+    got = _meta(export.export_run(warp_run, tmp_path / "w.npz"))
+    want = _meta(export.export_run(jax_run, tmp_path / "j.npz"))
+    assert got["trained_impl"] == "warp" and want["trained_impl"] == "jax"
+    assert got["model"] == want["model"] and got["env_config"] == want["env_config"]
+    assert got["env_config"]["impl"] == "jax" and got["env_config"]["terrain"] == "rough"

@@ -30,11 +30,15 @@ class RunDirInUse(UsageError):
     """Another process (a trainer or a resume) holds the run directory's lock."""
 
 
-def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collections.ConfigDict]:
+def load_run_config(
+    run_dir: Path, for_evaluation: bool = False
+) -> tuple[ml_collections.ConfigDict, ml_collections.ConfigDict]:
     """-> (env_cfg, ppo_cfg) of a run directory, with keys added since the run filled in
     (PPO_KEYS_ADDED, env_config.ENV_KEYS_ADDED). A damaged or incomplete config.json, a key this version does
     not know, a missing key, a value of the wrong type or out of range is a ValueError naming the
-    file and the key."""
+    file and the key. for_evaluation: env_cfg on MJX's JAX implementation even for a run trained on
+    Warp (env.impl="warp"), so that every evaluation and export steps the same physics code and
+    model (no Warp contact sensors, buffers or warp-lang), at any batch size."""
     from quadson_mjx.config import conform
     from quadson_mjx.env_config import check_env_config, env_config, with_added_keys
 
@@ -65,6 +69,8 @@ def load_run_config(run_dir: Path) -> tuple[ml_collections.ConfigDict, ml_collec
     except (ValueError, TypeError, AttributeError, KeyError) as e:  # any shape a hand edit leaves
         text = str(e) if isinstance(e, ValueError) else f"damaged or hand-edited ({type(e).__name__}: {e})"
         raise ValueError(text if text.startswith(str(path)) else f"{path}: {text}") from None
+    if for_evaluation and env_cfg.impl != "jax":
+        env_cfg = apply_overrides(env_cfg, ["impl=jax"])
     return env_cfg, ppo_cfg
 
 
@@ -248,15 +254,13 @@ def _reopen_log(run_dir: Path, log_path: Path, stream):
 def load_policy(run_dir: Path, checkpoint: Path | None = None, deterministic: bool = True):
     """-> (policy(obs, key) -> (action, extras), env_cfg, ppo_cfg, params) from a run directory, for
     an evaluation: env_cfg is the run's on MJX's JAX implementation even when it trained on Warp
-    (env.impl="warp"), so every evaluation steps the same physics code and reads its per-world
-    contact list (rollouts' foot forces), at any batch size."""
+    (load_run_config's for_evaluation), so every evaluation steps the same physics code and reads
+    its per-world contact list (rollouts' foot forces), at any batch size."""
     from brax.training.agents.ppo import networks as ppo_networks
 
     from quadson_mjx.envs import make_env
 
-    env_cfg, ppo_cfg = load_run_config(run_dir)
-    if env_cfg.get("impl", "jax") != "jax":
-        env_cfg = apply_overrides(env_cfg, ["impl=jax"])
+    env_cfg, ppo_cfg = load_run_config(run_dir, for_evaluation=True)
     env = make_env(env_cfg)
     path = checkpoint or latest_checkpoint(run_dir)[0]
     params = load_checkpoint(path, env.observation_size, env.action_size, ppo_cfg)
