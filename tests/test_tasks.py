@@ -84,6 +84,8 @@ COMMITTED_RUNS = {
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
     # the robust recipe with 3 ticks of sensor history
     "results/policy_h100_sensors": ("QuadsonJoystickRough", ["obs_history=3"]),
+    # the same recipe on MJX's Warp implementation
+    "results/policy_h100_sensors_warp": ("QuadsonJoystickRough", ["obs_history=3", "impl=warp"]),
     # the main job with its own PPO settings (training.presets.MAIN_JOB)
     "results/policy_h100_main": ("QuadsonFlat", []),
     # the main job with a 10-step unroll and 18M steps (MAIN_JOB now)
