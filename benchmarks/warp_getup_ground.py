@@ -36,17 +36,32 @@ from quadson_mjx.envs import make_env
 TASKS = {"flat": "QuadsonGetupFlat", "stones": "QuadsonGetupRough"}
 
 
-def run(ground: str, impl: str, worlds: int, steps: int) -> dict:
+def _env(ground: str, impl: str, worlds: int):
+    """The get-up task's env on `ground` under `impl`, randomization off."""
     cfg = apply_overrides(
         tasks.make_task_config(TASKS[ground]),
         [f"impl={impl}", f"warp_max_worlds={worlds}", "randomize=false"],
     )
-    env = make_env(cfg)
+    return make_env(cfg)
+
+
+def _rollout(env, worlds: int, steps: int):
+    """Yields (t, state) after each of `steps` control steps from the task's drops (seed 0), the
+    actions N(0, 0.5) per motor, drawn with key t at control step t."""
     reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
     s = reset(jax.random.split(jax.random.PRNGKey(0), worlds))
-    first_bad, most_contacts, heights = None, 0, []
+    yield -1, s
     for t in range(steps):
         s = step(s, 0.5 * jax.random.normal(jax.random.PRNGKey(t), (worlds, env.action_size)))
+        yield t, s
+
+
+def run(ground: str, impl: str, worlds: int, steps: int) -> dict:
+    env = _env(ground, impl, worlds)
+    first_bad, most_contacts, heights = None, 0, []
+    for t, s in _rollout(env, worlds, steps):
+        if t < 0:
+            continue
         d = s.pipeline_state
         finite = np.isfinite(np.asarray(d.qpos)).all(axis=1) & np.isfinite(np.asarray(d.qvel)).all(axis=1)
         if first_bad is None and not finite.all():
@@ -72,17 +87,13 @@ def run(ground: str, impl: str, worlds: int, steps: int) -> dict:
 
 
 def trace(worlds: int, steps: int, fast: float = 300.0) -> None:
-    cfg = apply_overrides(
-        tasks.make_task_config(TASKS["stones"]), ["impl=warp", f"warp_max_worlds={worlds}", "randomize=false"]
-    )
-    env = make_env(cfg)
+    env = _env("stones", "warp", worlds)
     m = env.mj_model
-    reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
-    s = reset(jax.random.split(jax.random.PRNGKey(0), worlds))
-    states, w = [s], None
-    for t in range(steps):
-        s = step(s, 0.5 * jax.random.normal(jax.random.PRNGKey(t), (worlds, env.action_size)))
+    states, w = [], None
+    for t, s in _rollout(env, worlds, steps):
         states.append(s)
+        if t < 0:
+            continue
         speed = np.nan_to_num(np.abs(np.asarray(s.pipeline_state.qvel)), nan=np.inf).max(axis=1)
         if w is None and (speed > fast).any():
             w, k = int(np.argmax(speed > fast)), t  # control step k + 1 passed `fast`; start at k

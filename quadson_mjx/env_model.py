@@ -1,12 +1,12 @@
 """The MuJoCo model an environment steps: the robot's scene with the env config's physics options.
 
 `training_model` loads the robot's flat or rough scene, or builds the tiled ground (`tiles_model`),
-and applies what the config chooses for
-speed (no sensor evaluation, feet-only ground contact, no joint-limit rows) and the solver options
-(cone, solver, mass-matrix storage); `put_model` hands it to MJX with the chosen implementation.
-Under MJX's Warp implementation the feet's contacts come from their height over the plane on the
-flat scene (`feet_on_plane`), else from contact sensors (`foot_contact_sensors`); its buffers are sized by `warp_buffers` and the reset's data is built
-from the MjModel (`make_env_data`).
+and applies what the config chooses for speed (no sensor evaluation, feet-only ground contact, no
+joint-limit rows) and the solver options (cone, solver, mass-matrix storage); `put_model` hands it
+to MJX with the chosen implementation. Under MJX's Warp implementation the feet's contacts come
+from their height over the plane on the flat scene (`feet_on_plane`), else from contact sensors
+(`foot_contact_sensors`); its buffers are sized by `warp_buffers` and the reset's data is built
+from the MjModel (`make_env_data`); `check_warp_ground` refuses the get-up task on a height field.
 `name_ids` looks names up once (Python never hard-codes a model index).
 """
 
