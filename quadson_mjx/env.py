@@ -244,6 +244,11 @@ class LocomotionEnv(Env):
         return None if self._warp_buffers is None else int(self._config.warp_max_worlds)
 
     @property
+    def warp_buffers(self) -> tuple[int, int] | None:
+        """Under Warp (naconmax, njmax) of env_model.warp_buffers; None on the JAX implementation."""
+        return self._warp_buffers
+
+    @property
     def config(self):
         return self._config
 

@@ -225,16 +225,22 @@ def put_model(m: mujoco.MjModel, impl: str):
     if impl != "warp":
         return mjx.put_model(m, impl=impl)
     warp_notice.require_warp()
-    from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
     from mujoco.mjx.warp.types import GraphMode
 
     mode = None if WARP_GRAPH_MODE is None else getattr(GraphMode, WARP_GRAPH_MODE)
     mx = mjx.put_model(m, impl=impl, graph_mode=mode)
-    # Our models run one constraint-solver iteration on purpose (as Playground's Go1 does), which
-    # Warp reports as a limit reached at every step; its other overflow warnings (contacts,
-    # constraint rows, height field) stay on.
-    warn = mx.opt._impl.warn_overflow & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
+    warn = quiet_overflow(mx.opt._impl.warn_overflow)
     return mx.replace(opt=mx.opt.replace(_impl=mx.opt._impl.replace(warn_overflow=warn)))
+
+
+def quiet_overflow(warn):
+    """MuJoCo Warp's overflow-warning bits `warn` without the solver's iteration limits: our models
+    run one constraint-solver iteration on purpose (as Playground's Go1 does), which Warp reports as
+    a limit reached at every step; its other warnings (contacts, constraint rows, height field)
+    stay on."""
+    from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
+
+    return warn & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
 
 
 def home_contact_points(

@@ -159,7 +159,7 @@ def _remove_if_unused(run_dir: Path) -> None:
 def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: SignalStop, held, init_from):
     from brax.training.agents.ppo import train as ppo
 
-    from quadson_mjx import compat
+    from quadson_mjx import compat, warp_build
     from quadson_mjx.env_config import check_env_config
     from quadson_mjx.env_model import scene_xml_text
     from quadson_mjx.envs import make_env
@@ -223,6 +223,9 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             env = make_env(env_cfg)
             eval_env = make_env(env_cfg)
         guards.check_memory(env, ppo_cfg.num_envs, local_devices_to_use(ppo_cfg))
+        if env.warp_buffers is not None:  # Warp's kernels, built while XLA compiles (warp_build)
+            build = warp_build.start(env.mj_model, env.warp_buffers)
+            print(f"warp: building {build.modules} kernel modules on {build.workers} threads", file=stream)
         if init_from is not None:  # before anything is written: a mismatch leaves no run behind
             try:
                 init_params, history_from = init_params_for(init_ckpt, source, env, env_cfg, ppo_cfg)
