@@ -10,7 +10,8 @@ a launch whose module does not load is skipped), then builds them on a pool of t
 caller goes on (the trainer: compiling its XLA programs); the step then finds them built.
 
 The listing sees what one step of one world launches, both branches of every conditional launch
-and one pass of every device-side loop. A module it misses, or one it builds differently from the
+and one pass of every device-side loop; a kernel whose launch is sized by CUDA's occupancy query
+(wp.get_suggested_block_size) is built during the listing, as that query needs it. A module it misses, or one it builds differently from the
 step's, is built by the step as before: slower, never wrong. A module that fails to build here
 fails the same way in the step, which reports it (Warp records the failure per module).
 """
@@ -67,11 +68,24 @@ def list_modules(m: mujoco.MjModel, buffers: tuple[int, int], device) -> list[tu
         wm.opt.warn_overflow = quiet_overflow(int(wm.opt.warn_overflow))
         d = mjwarp.make_data(m, nworld=1, naconmax=naconmax, njmax=njmax)
         seen: dict[tuple[int, int], tuple[object, int]] = {}
+        saved = (context.Module.load, wp.capture_while, wp.capture_if, wp.get_suggested_block_size)
+        loading = [False]  # inside get_suggested_block_size: the module is really built
 
         def record(module, device, block_dim=None, *args, **kwargs):
+            if loading[0]:
+                return saved[0](module, device, block_dim, *args, **kwargs)
             active = block_dim if block_dim is not None else module.options["block_dim"]
             seen.setdefault((id(module), active), (module, active))
             return None  # not loaded: wp.launch returns without launching
+
+        def suggested_block_size(kernel, device=None):
+            # CUDA's occupancy query needs the built kernel, and its answer sizes the launch that
+            # follows: this module is built here, on the calling thread.
+            loading[0] = True
+            try:
+                return saved[3](kernel, device)
+            finally:
+                loading[0] = False
 
         def each_body(*bodies, **kwargs):
             for body in bodies:
@@ -84,12 +98,12 @@ def list_modules(m: mujoco.MjModel, buffers: tuple[int, int], device) -> list[tu
         def capture_if(condition, on_true=None, on_false=None, stream=None, **kwargs):
             each_body(on_true, on_false, **kwargs)
 
-        saved = (context.Module.load, wp.capture_while, wp.capture_if)
         context.Module.load, wp.capture_while, wp.capture_if = record, capture_while, capture_if
+        wp.get_suggested_block_size = suggested_block_size
         try:
             mjwarp.step(wm, d)
         finally:
-            context.Module.load, wp.capture_while, wp.capture_if = saved
+            context.Module.load, wp.capture_while, wp.capture_if, wp.get_suggested_block_size = saved
     return list(seen.values())
 
 

@@ -350,8 +350,9 @@ def test_train_task_and_flag_spellings_give_one_config(name, monkeypatch, tmp_pa
 
 def test_main_job_alone_gets_the_main_job_ppo_settings(monkeypatch, tmp_path):
     """On the gpu preset, the main command (no flag, or --task QuadsonFlat) trains with MAIN_JOB's
-    2048 environments, 10-step unroll and 18M steps; every other task, --gait-action included,
-    with the preset's; an override still wins."""
+    2048 environments, 10-step unroll and 18M steps, on MJX's Warp implementation (one device,
+    warp-lang installed: the dev extra has it); every other task, --gait-action included, with the
+    preset's, on JAX; an override still wins."""
     from quadson_mjx.training.presets import MAIN_JOB
 
     class Stop(Exception):
@@ -360,7 +361,7 @@ def test_main_job_alone_gets_the_main_job_ppo_settings(monkeypatch, tmp_path):
     seen = []
 
     def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None):
-        seen.append(ppo_cfg)
+        seen.append((env_cfg, ppo_cfg))
         raise Stop
 
     monkeypatch.setattr(training, "train", fake_train)
@@ -373,6 +374,7 @@ def test_main_job_alone_gets_the_main_job_ppo_settings(monkeypatch, tmp_path):
         (["--gait", "trot"], False),
         (["--robot", "caramel"], False),
         (["--ppo.num_timesteps=30000000"], True),
+        (["--env.impl=jax"], True),
     ]
     for i, (argv, main) in enumerate(cases):
         sigterm = signal.getsignal(signal.SIGTERM)
@@ -383,12 +385,32 @@ def test_main_job_alone_gets_the_main_job_ppo_settings(monkeypatch, tmp_path):
                 )
         finally:
             signal.signal(signal.SIGTERM, sigterm)
-        cfg = seen.pop()
+        env_cfg, cfg = seen.pop()
         want = {k: (v if main else gpu[k]) for k, v in MAIN_JOB.items()}
         if argv[:1] == ["--ppo.num_timesteps=30000000"]:
             want["num_timesteps"] = 30_000_000
         assert {k: cfg[k] for k in MAIN_JOB} == want, argv
+        assert env_cfg.impl == ("warp" if main and argv != ["--env.impl=jax"] else "jax"), argv
     assert training.ppo_config("cpu", True).to_dict() == training.ppo_config("cpu").to_dict()
+
+
+def test_main_job_stays_on_jax_on_several_devices_or_without_warp(monkeypatch):
+    """main_job_env: Warp on one device with warp-lang; JAX, said in one line, on two devices or
+    when warp-lang cannot be imported."""
+    from quadson_mjx import warp_notice
+
+    flat = tasks.make_task_config("QuadsonFlat")
+    cfg, line = training.main_job_env(flat, 1)
+    assert cfg.impl == "warp" and flat.impl == "jax" and "Warp" in line
+    cfg, line = training.main_job_env(flat, 2)
+    assert cfg.impl == "jax" and "2 devices" in line
+
+    def missing():
+        raise ValueError("no warp")
+
+    monkeypatch.setattr(warp_notice, "require_warp", missing)
+    cfg, line = training.main_job_env(flat, 1)
+    assert cfg.impl == "jax" and "warp-lang is not installed" in line and "\n" not in line
 
 
 def test_train_defaults_are_quadson_flat(monkeypatch, tmp_path):

@@ -283,6 +283,9 @@ def _run(args, overrides, stop) -> int:
                 flags = {k: d if flags[k] is None else flags[k] for k, d in TASK_FLAG_DEFAULTS.items()}
                 env_cfg = tasks.config_from_flags(**flags, gait_action=args.gait_action)
             main = is_main_job(env_cfg)
+            if main and preset == "gpu":
+                env_cfg, line = training.main_job_env(env_cfg, jax.device_count())
+                print(line)
             env_cfg, ppo_cfg, run_dir = new_run_configs(
                 env_cfg, training.ppo_config(preset, main), overrides, args.run_dir, primary
             )

@@ -40,6 +40,7 @@ from quadson_mjx.training.presets import (
     check_ppo_config,
     epoch_steps,
     local_devices_to_use,
+    main_job_env,
     ppo_config,
 )
 from quadson_mjx.training.runs import (
