@@ -90,6 +90,8 @@ COMMITTED_RUNS = {
     "results/policy_h100_main": ("QuadsonFlat", []),
     # the main job with a 10-step unroll and 18M steps (MAIN_JOB now)
     "results/policy_h100_main_unroll10": ("QuadsonFlat", []),
+    # the main job as it runs now: on MJX's Warp implementation (training.presets.main_job_env)
+    "results/policy_h100_main_warp": ("QuadsonFlat", ["impl=warp"]),
     # and the yaw error in the actor's observation, yaw-rate tracking weighed twice
     "results/policy_h200_sensors_yaw": (
         "QuadsonJoystickRough",

@@ -283,7 +283,7 @@ def _run(args, overrides, stop) -> int:
                 flags = {k: d if flags[k] is None else flags[k] for k, d in TASK_FLAG_DEFAULTS.items()}
                 env_cfg = tasks.config_from_flags(**flags, gait_action=args.gait_action)
             main = is_main_job(env_cfg)
-            if main and preset == "gpu":
+            if main and preset == "gpu" and not any(o.startswith("--env.impl=") for o in overrides):
                 env_cfg, line = training.main_job_env(env_cfg, jax.device_count())
                 print(line)
             env_cfg, ppo_cfg, run_dir = new_run_configs(

@@ -15,9 +15,10 @@ from quadson_mjx.config import LAYER_SIZE_KEYS, Rule
 # per sample, reach 0.45 m/s in a quarter of the preset's environment steps (8.0M against 32.8M,
 # benchmarks/results/ppo_settings_h200_b); half the unroll (10 steps: an update every 20,480
 # samples) reaches it at 6M (benchmarks/results/ppo_settings_h200_c). Evaluations at 0, 6, 12 and
-# 18M steps. First runs on one NVIDIA H100 (empty compilation cache): 139.0 and 135.0 s, 0.45 m/s
-# at 92.4 and 89.7 s (benchmarks/results/time_to_policy_h100_kept.json); the 24M-step, 20-step
-# unroll settings before: 134.7-159.9 s, 0.45 m/s at 81.7-126.9 s in five runs.
+# 18M steps. First runs on one NVIDIA H100 (empty compilation cache) on JAX: 139.0 and 135.0 s,
+# 0.45 m/s at 92.4 and 89.7 s (benchmarks/results/time_to_policy_h100_kept.json); the 24M-step,
+# 20-step unroll settings before: 134.7-159.9 s, 0.45 m/s at 81.7-126.9 s in five runs. On Warp
+# (main_job_env): see there.
 MAIN_JOB = {
     "num_envs": 2048,
     "batch_size": 256,
