@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-from quadson_mjx import env_model
+from quadson_mjx import env_model, warp_build
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.robots import ROBOT_NAMES, get_robot
@@ -150,6 +150,7 @@ def physics_only(
     if impl == "warp":
         naconmax = n_envs * contacts_per_world
         base = mjx.make_data(m, impl="warp", naconmax=naconmax, njmax=njmax)
+        warp_build.start(m, (naconmax, njmax)).wait()  # the kernels built in parallel, not timed
     else:
         base = mjx.make_data(mx)
 
@@ -297,6 +298,8 @@ def main(argv=None):
         cfg.warp_max_worlds = max(args.envs)
         env = LocomotionEnv(cfg)
         m = env.mj_model
+        if env.warp_buffers is not None:
+            warp_build.start(m, env.warp_buffers).wait()
         home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
         dx = mjx.make_data(m)
         setting = name if fivebar == "full" else f"{name}+{fivebar}"
