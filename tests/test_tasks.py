@@ -92,6 +92,8 @@ COMMITTED_RUNS = {
     "results/policy_h100_main_unroll10": ("QuadsonFlat", []),
     # the main job as it runs now: on MJX's Warp implementation (training.presets.main_job_env)
     "results/policy_h100_main_warp": ("QuadsonFlat", ["impl=warp"]),
+    # and on the light five-bar model (env.fivebar_model=light)
+    "results/policy_h100_main_warp_light": ("QuadsonFlat", ["impl=warp", "fivebar_model=light"]),
     # and the yaw error in the actor's observation, yaw-rate tracking weighed twice
     "results/policy_h200_sensors_yaw": (
         "QuadsonJoystickRough",
