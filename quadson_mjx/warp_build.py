@@ -11,9 +11,10 @@ caller goes on (the trainer: compiling its XLA programs); the step then finds th
 
 The listing sees what one step of one world launches, both branches of every conditional launch
 and one pass of every device-side loop; a kernel whose launch is sized by CUDA's occupancy query
-(wp.get_suggested_block_size) is built during the listing, as that query needs it. A module it misses, or one it builds differently from the
-step's, is built by the step as before: slower, never wrong. A module that fails to build here
-fails the same way in the step, which reports it (Warp records the failure per module).
+(wp.get_suggested_block_size) is built during the listing, as that query needs it. A module it
+misses, or one it builds differently from the step's, is built by the step as before: slower,
+never wrong. A module that fails to build here fails the same way in the step, which reports it
+(Warp records the failure per module).
 """
 
 from __future__ import annotations
@@ -123,11 +124,13 @@ def start(m: mujoco.MjModel, buffers: tuple[int, int], device=None, workers: int
 
     def run():
         t0 = time.perf_counter()
-        with ThreadPoolExecutor(workers) as pool:
-            for job in [pool.submit(load, mod, bd) for mod, bd in modules]:
-                job.result()
-        build.seconds = time.perf_counter() - t0
-        build._done.set()
+        try:
+            with ThreadPoolExecutor(workers) as pool:
+                for job in [pool.submit(load, mod, bd) for mod, bd in modules]:
+                    job.result()
+        finally:  # wait() returns whatever happened
+            build.seconds = time.perf_counter() - t0
+            build._done.set()
 
     threading.Thread(target=run, name="warp-build", daemon=True).start()
     return build

@@ -47,9 +47,8 @@ def main_job_env(env_cfg, devices: int) -> tuple[object, str]:
             "env.impl=jax: warp-lang is not installed (pip install -e '.[warp]' for MJX's faster "
             "Warp implementation)"
         )
-    return apply_overrides(
-        env_cfg, ["impl=warp"]
-    ), "env.impl=warp: the main job runs on MJX's Warp implementation"
+    warp_cfg = apply_overrides(env_cfg, ["impl=warp"])
+    return warp_cfg, "env.impl=warp: the main job runs on MJX's Warp implementation"
 
 
 def ppo_config(preset: str = "gpu", main_job: bool = False) -> ml_collections.ConfigDict:
