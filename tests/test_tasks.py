@@ -143,6 +143,9 @@ COMMITTED_RUNS = {
     "results/getup_mirror_h100": ("QuadsonGetupFlat", ["getup.mirror_to=left"]),
     # and 40M steps more (--init-from)
     "results/getup_mirror_ft_h200": ("QuadsonGetupFlat", ["getup.mirror_to=left"]),
+    # trained on one side on MJX's Warp implementation, 300M steps from scratch (one H100; one H200)
+    "results/getup_warp_h100": ("QuadsonGetupFlat", ["getup.mirror_to=left", "impl=warp"]),
+    "results/getup_warp_h200": ("QuadsonGetupFlat", ["getup.mirror_to=left", "impl=warp"]),
     "results/gaits/walk": ("QuadsonGaitWalk", []),
     "results/gaits/trot": ("QuadsonGaitTrot", []),
     # fine-tuned (--init-from) from before_finetune/pace under a wider randomization
