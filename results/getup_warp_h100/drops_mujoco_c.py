@@ -29,16 +29,10 @@ import mujoco
 import numpy as np
 
 from quadson_mjx import export, tasks
+from quadson_mjx.deploy_supervisor import tilt
 from quadson_mjx.getup_env import GetupEnv
 from quadson_mjx.knockdown import build
 from quadson_mjx.robots.quadson import getup_start
-
-SUCCESS_TILT, SUCCESS_HEIGHT_M, HOLD_S, WITHIN_S = math.radians(10.0), 0.02, 1.0, 5.0
-
-
-def tilt(quat) -> float:
-    w, x, y, z = quat
-    return math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (x * x + y * y))))
 
 
 def main() -> None:
@@ -68,6 +62,7 @@ def main() -> None:
     )
     policy, dt = sup.getup, sup.dt
     stand_h = env.stand_height  # the task's: the home stance's base height above the ground
+    g = env.config.getup  # the task's success: tilt, height, hold, within
     rows = []
     for i in np.flatnonzero(same):
         plant.reset()
@@ -79,7 +74,7 @@ def main() -> None:
         mujoco.mj_forward(plant.m, d)
         policy.reset()
         t0_tilt, touch_tilt, began, stood = tilt(d.qpos[3:7]), None, None, None
-        for k in range(int(round((WITHIN_S + HOLD_S) / dt))):
+        for k in range(int(round((g.success_within_s + g.success_hold_s) / dt))):
             rd = plant.read()
             out = policy.act(rd.imu_quat_wxyz, rd.gyro, rd.motor_pos)
             if out is not None:
@@ -88,14 +83,15 @@ def main() -> None:
             if touch_tilt is None and d.ncon > 0:
                 touch_tilt = tilt(d.qpos[3:7])
             up = (
-                tilt(d.qpos[3:7]) < SUCCESS_TILT and abs(plant.truth()["height"] - stand_h) < SUCCESS_HEIGHT_M
+                tilt(d.qpos[3:7]) < g.success_tilt_rad
+                and abs(plant.truth()["height"] - stand_h) < g.success_height_m
             )
             t = (k + 1) * dt
-            if up and began is None and t <= WITHIN_S + 1e-9:
+            if up and began is None and t <= g.success_within_s + 1e-9:
                 began = t
             elif not up:
                 began = None
-            if began is not None and t - began >= HOLD_S - 1e-9:
+            if began is not None and t - began >= g.success_hold_s - 1e-9:
                 stood = began
                 break
         rows.append(
