@@ -1,0 +1,130 @@
+"""Where in frequency the joystick policies' yaw-rate error lies.
+
+yaw_rate_parts.py splits the error into the gait's phase-locked wobble, the cycle mean and "the
+rest", and the rest is most of it on the stones. This script splits the same error (gyro z minus
+the commanded yaw rate, the steps that quadson_mjx.policy_eval keeps: after the first second,
+before any episode end) by frequency instead: each environment's kept whole gait cycles, as one
+record, through a discrete Fourier transform; by Parseval the band powers add up to the square of
+the RMS. Bands (the trot's cycle is 0.8 s: stride 1.25 Hz, a diagonal pair's step 2.5 Hz; control
+at 50 Hz, Nyquist 25 Hz): below 1 Hz (drift and slow tracking), 1-3.5 Hz (the stride and the
+steps), 3.5-8 Hz (their harmonics), 8-25 Hz (faster than any foot-step: impacts, the policy's own
+chatter at the control rate).
+
+    python results/policy_eval/yaw_rate_spectrum.py OUT.json RUN [RUN ...] > OUT.log
+
+Per run three rows: the stones and flat ground as evaluated (randomized model, sensor errors,
+pushes), and the stones with the nominal model, no pushes and no sensor errors. Each row: the 75
+commands of quadson_mjx.commands.sweep_commands, one environment each, 20 s, seed 0 (the draws of
+yaw_rate_parts.py). `--commands N --seconds S` for a quick check.
+"""
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from quadson_mjx import rollout as R
+from quadson_mjx.commands import sweep_commands
+from quadson_mjx.config import apply_overrides
+from quadson_mjx.env import LocomotionEnv
+from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.policy_eval import SETTLE_S
+from quadson_mjx.training import load_policy
+
+BANDS_HZ = [(0.0, 1.0), (1.0, 3.5), (3.5, 8.0), (8.0, 25.01)]
+NOMINAL = ["randomize=false", "pushes=false"]
+CONDITIONS = [("stones", "rough", []), ("flat", "flat", []), ("stones, nominal, no pushes", "rough", NOMINAL)]
+
+
+def band_rms(err: np.ndarray, keep: np.ndarray, steps_per_cycle: int, first_kept: int, dt: float):
+    """err, keep: (T, B) -> (total RMS, [RMS per band of BANDS_HZ]) over each environment's kept
+    whole cycles after first_kept; every environment weighs by its number of kept steps."""
+    T, B = err.shape
+    total = 0.0
+    bands = np.zeros(len(BANDS_HZ))
+    count = 0
+    for b in range(B):
+        n = np.argmin(keep[first_kept:, b]) if not keep[first_kept:, b].all() else T - first_kept
+        n = (n // steps_per_cycle) * steps_per_cycle
+        if n < 2 * steps_per_cycle:
+            continue
+        e = err[first_kept : first_kept + n, b].astype(np.float64)
+        spec = np.abs(np.fft.rfft(e)) ** 2 / n  # sum over the two-sided spectrum = sum(e^2)
+        weight = np.full(spec.shape, 2.0)  # one-sided: every bin but DC (and Nyquist) stands for two
+        weight[0] = 1.0
+        if n % 2 == 0:
+            weight[-1] = 1.0
+        power = spec * weight  # sums to sum(e^2)
+        freq = np.fft.rfftfreq(n, dt)
+        for i, (lo, hi) in enumerate(BANDS_HZ):
+            bands[i] += power[(freq >= lo) & (freq < hi)].sum()
+        total += np.sum(e**2)
+        count += n
+    return float(np.sqrt(total / max(count, 1))), np.sqrt(bands / max(count, 1))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out")
+    ap.add_argument("runs", nargs="+")
+    ap.add_argument("--commands", type=int, default=75)
+    ap.add_argument("--seconds", type=float, default=20.0)
+    args = ap.parse_args()
+    commands = sweep_commands().astype(np.float32)[: args.commands]
+    heads = " | ".join(f"{lo:g}-{min(hi, 25):g} Hz" for lo, hi in BANDS_HZ)
+    print(f"| policy | ground | yaw-rate error RMS [rad/s] | {heads} | falls |")
+    print("|---|---|---|" + "---|" * len(BANDS_HZ) + "---|")
+    rows = []
+    for run in args.runs:
+        policy, env_cfg, _, _ = load_policy(Path(run))
+        for label, terrain, overrides in CONDITIONS:
+            cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
+            env = LocomotionEnv(cfg)
+            steps_per_cycle = int(round(float(env.gait_params.cycle_s) / env.ctrl_dt))
+            first_kept = -(-int(round(SETTLE_S / env.ctrl_dt)) // steps_per_cycle) * steps_per_cycle
+            t0 = time.monotonic()
+            segs = list(
+                R.run(
+                    env,
+                    R.policy_controller(policy),
+                    jax.random.PRNGKey(0),
+                    len(commands),
+                    int(round(args.seconds / env.ctrl_dt)),
+                    segment_steps=250,
+                    command=commands,
+                    randomize=bool(cfg.randomize),
+                )
+            )
+            err = np.concatenate([s.ang_vel[..., 2] - s.command[..., 2] for _, s in segs])
+            done = np.concatenate([s.done for _, s in segs])
+            fall = np.concatenate([s.fall for _, s in segs])
+            keep = np.cumsum(done, axis=0) == 0
+            total, bands = band_rms(err, keep, steps_per_cycle, first_kept, env.ctrl_dt)
+            falls = int(fall.any(axis=0).sum())
+            cells = " | ".join(f"{x:.3f}" for x in bands)
+            print(
+                f"| {Path(run).name} | {label} | {total:.3f} | {cells} | {falls}/{len(commands)} |",
+                flush=True,
+            )
+            rows.append(
+                {
+                    "run": run,
+                    "ground": label,
+                    "overrides": overrides,
+                    "rms_total": total,
+                    "bands_hz": BANDS_HZ,
+                    "rms_bands": bands.tolist(),
+                    "falls": falls,
+                    "envs": len(commands),
+                    "wall_s": round(time.monotonic() - t0, 1),
+                }
+            )
+    settings = {"seconds": args.seconds, "commands": len(commands), "seed": 0}
+    Path(args.out).write_text(json.dumps({"settings": settings, "rows": rows}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
