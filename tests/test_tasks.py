@@ -109,6 +109,18 @@ COMMITTED_RUNS = {
             "reward.tracking_sigma=0.15",
         ],
     ),
+    # and a trot cycle of 0.48 s (0.6 of the gait table's 0.8 s), trained on MJX's Warp implementation
+    "results/policy_h200_sensors_c048": (
+        "QuadsonJoystickRough",
+        [
+            "obs_history=3",
+            "yaw_error_tau_s=0.5",
+            "reward.weights.ang_vel_tracking_exp=1.0",
+            "reward.tracking_sigma=0.15",
+            "impl=warp",
+            "gait_scale.cycle_s=0.6",
+        ],
+    ),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
