@@ -88,6 +88,36 @@ ROWS = [  # (label, run whose env config is used, controller "policy" or "gait",
 ]
 
 
+def cycle_steps(env) -> tuple[int, int]:
+    """-> (control steps per gait cycle, the first kept step): SETTLE_S rounded up to whole cycles,
+    so that the first kept step starts a cycle."""
+    steps_per_cycle = int(round(float(env.gait_params.cycle_s) / env.ctrl_dt))
+    first_kept = -(-int(round(SETTLE_S / env.ctrl_dt)) // steps_per_cycle) * steps_per_cycle
+    return steps_per_cycle, first_kept
+
+
+def yaw_rate_errors(env, controller, commands: np.ndarray, seconds: float, randomize: bool):
+    """One environment per command for `seconds`, seed 0 -> (err, keep, falls): the yaw-rate error
+    (gyro z minus the command) and the steps before each environment's first episode end, (T, B)
+    each, and the number of environments that fell."""
+    segs = list(
+        R.run(
+            env,
+            controller,
+            jax.random.PRNGKey(0),
+            len(commands),
+            int(round(seconds / env.ctrl_dt)),
+            segment_steps=250,
+            command=commands,
+            randomize=randomize,
+        )
+    )
+    err = np.concatenate([s.ang_vel[..., 2] - s.command[..., 2] for _, s in segs])
+    done = np.concatenate([s.done for _, s in segs])
+    fall = np.concatenate([s.fall for _, s in segs])
+    return err, np.cumsum(done, axis=0) == 0, int(fall.any(axis=0).sum())
+
+
 def parts(err: np.ndarray, keep: np.ndarray, steps_per_cycle: int, first_kept: int) -> np.ndarray:
     """err, keep: (T, B) -> (4,) RMS of total, phase-locked, cycle mean, rest over the whole cycles
     after first_kept of each environment's kept steps (an environment with an episode end keeps its
@@ -143,28 +173,10 @@ def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS, rows=RO
         cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
         env = LocomotionEnv(cfg)
         controller = R.policy_controller(policy) if kind == "policy" else R.gait_only(env)
-        steps_per_cycle = int(round(float(env.gait_params.cycle_s) / env.ctrl_dt))
-        # the first kept step starts a cycle: SETTLE_S rounded up to whole cycles
-        first_kept = -(-int(round(SETTLE_S / env.ctrl_dt)) // steps_per_cycle) * steps_per_cycle
+        steps_per_cycle, first_kept = cycle_steps(env)
         t0 = time.monotonic()
-        segs = list(
-            R.run(
-                env,
-                controller,
-                jax.random.PRNGKey(0),
-                len(commands),
-                int(round(seconds / env.ctrl_dt)),
-                segment_steps=250,
-                command=commands,
-                randomize=bool(cfg.randomize),
-            )
-        )
-        err = np.concatenate([s.ang_vel[..., 2] - s.command[..., 2] for _, s in segs])
-        done = np.concatenate([s.done for _, s in segs])
-        fall = np.concatenate([s.fall for _, s in segs])
-        keep = np.cumsum(done, axis=0) == 0
+        err, keep, falls = yaw_rate_errors(env, controller, commands, seconds, bool(cfg.randomize))
         rms = parts(err, keep, steps_per_cycle, first_kept)
-        falls = int(fall.any(axis=0).sum())
         row = {
             "controller": label,
             "run": run,

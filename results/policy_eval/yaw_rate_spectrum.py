@@ -15,7 +15,7 @@ chatter at the control rate).
 Per run three rows: the stones and flat ground as evaluated (randomized model, sensor errors,
 pushes), and the stones with the nominal model, no pushes and no sensor errors. Each row: the 75
 commands of quadson_mjx.commands.sweep_commands, one environment each, 20 s, seed 0 (the draws of
-yaw_rate_parts.py). `--commands N --seconds S` for a quick check.
+yaw_rate_parts.py, whose rollout and kept steps it uses). `--commands N --seconds S` for a quick check.
 """
 
 import argparse
@@ -23,15 +23,14 @@ import json
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
+from yaw_rate_parts import cycle_steps, yaw_rate_errors  # this folder's script: the same rollouts
 
 from quadson_mjx import rollout as R
 from quadson_mjx.commands import sweep_commands
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
-from quadson_mjx.policy_eval import SETTLE_S
 from quadson_mjx.training import load_policy
 
 BANDS_HZ = [(0.0, 1.0), (1.0, 3.5), (3.5, 8.0), (8.0, 25.01)]
@@ -83,27 +82,11 @@ def main() -> None:
         for label, terrain, overrides in CONDITIONS:
             cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
             env = LocomotionEnv(cfg)
-            steps_per_cycle = int(round(float(env.gait_params.cycle_s) / env.ctrl_dt))
-            first_kept = -(-int(round(SETTLE_S / env.ctrl_dt)) // steps_per_cycle) * steps_per_cycle
+            steps_per_cycle, first_kept = cycle_steps(env)
             t0 = time.monotonic()
-            segs = list(
-                R.run(
-                    env,
-                    R.policy_controller(policy),
-                    jax.random.PRNGKey(0),
-                    len(commands),
-                    int(round(args.seconds / env.ctrl_dt)),
-                    segment_steps=250,
-                    command=commands,
-                    randomize=bool(cfg.randomize),
-                )
-            )
-            err = np.concatenate([s.ang_vel[..., 2] - s.command[..., 2] for _, s in segs])
-            done = np.concatenate([s.done for _, s in segs])
-            fall = np.concatenate([s.fall for _, s in segs])
-            keep = np.cumsum(done, axis=0) == 0
+            controller = R.policy_controller(policy)
+            err, keep, falls = yaw_rate_errors(env, controller, commands, args.seconds, bool(cfg.randomize))
             total, bands = band_rms(err, keep, steps_per_cycle, first_kept, env.ctrl_dt)
-            falls = int(fall.any(axis=0).sum())
             cells = " | ".join(f"{x:.3f}" for x in bands)
             print(
                 f"| {Path(run).name} | {label} | {total:.3f} | {cells} | {falls}/{len(commands)} |",
