@@ -37,7 +37,12 @@ and flat ground with the nominal model and no pushes;
 
 one policy on the stones and on flat ground as evaluated and under one disturbance at a time
 (FACTORS: none, the pushes, the sensor errors, the randomized model with the sensor errors);
-`--factors RUN --only "sensor errors"` those FACTORS alone.
+`--factors RUN --only "sensor errors"` those FACTORS alone;
+
+    python results/policy_eval/yaw_rate_parts.py OUT.json --sensor-groups RUN
+
+the policy on the stones with the sensor errors split in two (SENSOR_GROUPS: the readings' latency
+alone, and every other sensor error without it), on the nominal model without pushes.
 """
 
 import json
@@ -75,6 +80,14 @@ IDEAL_SENSORS = [  # the sensor-only actor's IMU and encoders without noise, bia
     "sensor.encoder_noise_rad=0",
     "sensor.encoder_resolution_rad=0",
     "sensor.latency_s=0,0",
+]
+SENSOR_ERRORS = ["randomize=true", "pushes=false", *nominal_range_overrides()]  # FACTORS' third
+SENSOR_GROUPS = [  # the sensor errors split in two: the readings' latency, and the rest
+    (
+        ", sensor latency only",
+        SENSOR_ERRORS + [o for o in IDEAL_SENSORS if not o.startswith("sensor.latency_s")],
+    ),
+    (", sensor errors but the latency", SENSOR_ERRORS + ["sensor.latency_s=0,0"]),
 ]
 ROWS = [  # (label, run whose env config is used, controller "policy" or "gait", terrain, overrides)
     ("sensor-only policy", "results/policy_h100_sensors", "policy", "flat", []),
@@ -193,8 +206,9 @@ def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS, rows=RO
         }
         out.append(row)
         ground = "stones" if terrain == "rough" else "flat"
-        ground += next((label for label, o in FACTORS if o == overrides[: len(o)] and overrides), "")
-        ground += ", ideal sensors" if IDEAL_SENSORS[0] in overrides else ""
+        labels = SENSOR_GROUPS + FACTORS  # the longer overrides first: FACTORS' are their prefixes
+        ground += next((label for label, o in labels if o == overrides[: len(o)] and overrides), "")
+        ground += ", ideal sensors" if set(IDEAL_SENSORS) <= set(overrides) else ""
         print(
             f"| {label} | {ground} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} | {rms[3]:.3f} "
             f"| {falls}/{len(commands)} |",
@@ -208,6 +222,11 @@ if __name__ == "__main__":
     if len(sys.argv) > 2 and sys.argv[2] == "--factors":
         only = sys.argv[5] if len(sys.argv) > 5 and sys.argv[4] == "--only" else None
         main(sys.argv[1], rows=factor_rows(sys.argv[3], only))
+    elif len(sys.argv) > 2 and sys.argv[2] == "--sensor-groups":
+        main(
+            sys.argv[1],
+            rows=[(Path(sys.argv[3]).name, sys.argv[3], "policy", "rough", o) for _, o in SENSOR_GROUPS],
+        )
     elif len(sys.argv) > 2 and sys.argv[2] == "--runs":
         main(sys.argv[1], rows=run_rows(sys.argv[3:]))
     else:
