@@ -131,16 +131,21 @@ def yaw_rate_errors(env, controller, commands: np.ndarray, seconds: float, rando
     return err, np.cumsum(done, axis=0) == 0, int(fall.any(axis=0).sum())
 
 
+def kept_cycles(keep: np.ndarray, first_kept: int, steps_per_cycle: int) -> np.ndarray:
+    """keep: (T, B) -> (B,) whole gait cycles of each environment's kept steps after first_kept
+    (an environment with an episode end keeps its whole cycles before it)."""
+    after = keep[first_kept:]
+    n = np.where(after.all(axis=0), after.shape[0], np.argmin(after, axis=0))
+    return n // steps_per_cycle
+
+
 def parts(err: np.ndarray, keep: np.ndarray, steps_per_cycle: int, first_kept: int) -> np.ndarray:
     """err, keep: (T, B) -> (4,) RMS of total, phase-locked, cycle mean, rest over the whole cycles
     after first_kept of each environment's kept steps (an environment with an episode end keeps its
     whole cycles before it)."""
-    T, B = err.shape
     sq = np.zeros(4)
     count = 0
-    for b in range(B):
-        n = np.argmin(keep[first_kept:, b]) if not keep[first_kept:, b].all() else T - first_kept
-        cycles = n // steps_per_cycle
+    for b, cycles in enumerate(kept_cycles(keep, first_kept, steps_per_cycle)):
         if cycles < 2:
             continue
         e = err[first_kept : first_kept + cycles * steps_per_cycle, b].reshape(cycles, steps_per_cycle)

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from yaw_rate_parts import cycle_steps, yaw_rate_errors  # this folder's script: the same rollouts
+from yaw_rate_parts import NOMINAL, cycle_steps, kept_cycles, yaw_rate_errors  # this folder's script
 
 from quadson_mjx import rollout as R
 from quadson_mjx.commands import sweep_commands
@@ -34,22 +34,19 @@ from quadson_mjx.env_config import with_added_keys
 from quadson_mjx.training import load_policy
 
 BANDS_HZ = [(0.0, 1.0), (1.0, 3.5), (3.5, 8.0), (8.0, 25.01)]
-NOMINAL = ["randomize=false", "pushes=false"]
 CONDITIONS = [("stones", "rough", []), ("flat", "flat", []), ("stones, nominal, no pushes", "rough", NOMINAL)]
 
 
 def band_rms(err: np.ndarray, keep: np.ndarray, steps_per_cycle: int, first_kept: int, dt: float):
     """err, keep: (T, B) -> (total RMS, [RMS per band of BANDS_HZ]) over each environment's kept
     whole cycles after first_kept; every environment weighs by its number of kept steps."""
-    T, B = err.shape
     total = 0.0
     bands = np.zeros(len(BANDS_HZ))
     count = 0
-    for b in range(B):
-        n = np.argmin(keep[first_kept:, b]) if not keep[first_kept:, b].all() else T - first_kept
-        n = (n // steps_per_cycle) * steps_per_cycle
-        if n < 2 * steps_per_cycle:
+    for b, cycles in enumerate(kept_cycles(keep, first_kept, steps_per_cycle)):
+        if cycles < 2:
             continue
+        n = cycles * steps_per_cycle
         e = err[first_kept : first_kept + n, b].astype(np.float64)
         spec = np.abs(np.fft.rfft(e)) ** 2 / n  # sum over the two-sided spectrum = sum(e^2)
         weight = np.full(spec.shape, 2.0)  # one-sided: every bin but DC (and Nyquist) stands for two
