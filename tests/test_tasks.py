@@ -121,6 +121,18 @@ COMMITTED_RUNS = {
             "gait_scale.cycle_s=0.6",
         ],
     ),
+    # that run continued for 280M more steps with its configs (--init-from, 560M in all)
+    "results/policy_h200_sensors_c048_560m": (
+        "QuadsonJoystickRough",
+        [
+            "obs_history=3",
+            "yaw_error_tau_s=0.5",
+            "reward.weights.ang_vel_tracking_exp=1.0",
+            "reward.tracking_sigma=0.15",
+            "impl=warp",
+            "gait_scale.cycle_s=0.6",
+        ],
+    ),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
