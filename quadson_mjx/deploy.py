@@ -4,6 +4,7 @@ as the environment computes them.
 
     loop = DeployLoop(load_policy("policy.onnx"))      # the robot, gait and observation from the file
     loop.reset(motor_pos=encoders)                     # a walk starts from the encoders' reading
+    loop.imu_calibration = deploy_imu.calibrate_imu(quats, gyros)  # once, standing still, level
     loop.reset_heading()                               # the IMU's yaw now is 0 (true_state policies)
     out = loop.step(imu_quat_wxyz, gyro, motor_pos, command=(0.3, 0.0, 0.0))   # once per tick
     send(out.motor_targets)                            # (12,) [rad]: always finite, in the limits
@@ -46,6 +47,7 @@ from typing import NamedTuple
 import numpy as np
 
 from quadson_mjx import obs_spec
+from quadson_mjx.deploy_imu import ImuCalibration
 from quadson_mjx.deploy_observation import ObservationBuilder
 from quadson_mjx.deploy_policy import check_buildable, check_meta, load_policy
 from quadson_mjx.deploy_robots import RobotKinematics, robot_kinematics
@@ -200,6 +202,20 @@ class DeployLoop:
             np.zeros(self.config.obs_size, np.float32),
             self.config.robot.home_feet.copy(),
         )
+
+    @property
+    def imu_calibration(self):
+        """deploy_imu.ImuCalibration taken out of every IMU reading the policy observes (the safety
+        checks see the raw readings), or None (the default)."""
+        return self.observer.imu_calibration
+
+    @imu_calibration.setter
+    def imu_calibration(self, cal) -> None:
+        if cal is not None and not isinstance(cal, ImuCalibration):
+            raise ValueError(
+                f"imu_calibration: a deploy_imu.ImuCalibration or None, not {type(cal).__name__}"
+            )
+        self.observer.imu_calibration = cal
 
     def reset_heading(self, imu_quat_wxyz=None) -> None:
         """The IMU's yaw becomes 0: the given orientation's, else the last step's, else the next

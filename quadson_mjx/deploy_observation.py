@@ -43,6 +43,7 @@ class ObservationBuilder:
         if "yaw_error" in {e.name for e in spec.entries} and not self.yaw_error_tau_s > 0:
             raise ValueError("the observation has a yaw_error entry but no yaw_error_tau_s > 0")
         self.lags = _max_lag(spec)
+        self.imu_calibration = None  # deploy_imu.ImuCalibration applied to every reading, or None
         self.heading = None  # (4,) quaternion rotating the world by -yaw0 about z, or None
         self._pending_heading = False
         self._last_quat = None
@@ -64,13 +65,18 @@ class ObservationBuilder:
         norm = float(np.linalg.norm(q))
         if q.shape != (4,) or not np.isfinite(norm) or norm < 0.5:
             raise ValueError(f"reset_heading: {q!r} is not an orientation quaternion")
+        if imu_quat_wxyz is not None and self.imu_calibration is not None:
+            q = self.imu_calibration.apply(q, np.zeros(3))[0]
         yaw = float(quat_to_rpy(q / norm)[2])
         self.heading = np.array([np.cos(-0.5 * yaw), 0.0, 0.0, np.sin(-0.5 * yaw)])
         self._pending_heading = False
 
     def observe(self, quat, gyro, motor_pos, command, base_lin_vel, progress, ctrl_dt, resync=False):
         """Checked readings (deploy_safety.check_sensors) -> (obs_size,) float32. The history moves
-        on only at commit() (a tick whose policy output is not used leaves it as it was)."""
+        on only at commit() (a tick whose policy output is not used leaves it as it was). With an
+        imu_calibration, its mounting tilt and gyro bias are taken out of the readings first."""
+        if self.imu_calibration is not None:
+            quat, gyro = self.imu_calibration.apply(quat, gyro)
         q = quat / np.linalg.norm(quat)
         if self._pending_heading:
             self.reset_heading(q)
