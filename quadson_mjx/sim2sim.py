@@ -45,6 +45,7 @@ import numpy as np
 
 from quadson_mjx import gait_pattern
 from quadson_mjx import sim2sim_plant as P
+from quadson_mjx.deploy_imu import calibrate_imu
 from quadson_mjx.robots import get_robot
 from quadson_mjx.sim2sim_loop import VELOCITY_SOURCES, LoopAdapter  # noqa: F401 (the module's API)
 from quadson_mjx.sim2sim_table import GROUP_KEYS, format_table, rms, summarize  # noqa: F401 (the module's API)
@@ -207,10 +208,13 @@ def run_episode(
     seed: int = 0,
     recorder=None,
     terrain: str = "flat",
+    imu_calibration_s: float = 0.0,
 ) -> dict:
     """One closed-loop run: reset the plant at the terrain's start (start_xy) with a seeded heading,
     start the loop on its sensor readings, then every ctrl_dt: read, step the loop, send, advance
-    the physics. -> the run's metrics (see the module docstring)."""
+    the physics. -> the run's metrics (see the module docstring). imu_calibration_s > 0 (flat ground
+    only): first the robot stands that long at home while the IMU is read each tick, and the loop
+    takes its deploy_imu calibration from those readings, as a robot does on a level floor."""
     term = {
         "max_tilt_rad": math.pi / 4,
         "min_height_m": 0.1,
@@ -222,6 +226,16 @@ def run_episode(
     rng = np.random.default_rng(seed)
     yaw = float(rng.uniform(-math.pi, math.pi))
     plant.reset(start_xy(terrain, adapter.env_config, rng), yaw)
+    if imu_calibration_s > 0:
+        if terrain != "flat":
+            raise ValueError(f"an IMU calibration needs level ground; the run is on {terrain}")
+        quats, gyros = [], []
+        for _ in range(max(1, int(round(imu_calibration_s / dt)))):  # standing at home, a tick apart
+            readings = plant.read()
+            quats.append(readings.imu_quat_wxyz)
+            gyros.append(readings.gyro)
+            plant.advance(dt)
+        adapter.loop.imu_calibration = calibrate_imu(quats, gyros)
     adapter.reset(plant.read())
     n = int(round(duration_s / dt))
     err, vx, forces, stance = [], [], [], []
@@ -323,7 +337,16 @@ def run_one(job: dict) -> dict:
 
         recorder = Recorder(job.get("mcap"), job.get("video"), plant, adapter, job)
     try:
-        row = run_episode(adapter, plant, schedule, job["duration_s"], seed, recorder, job["terrain"])
+        row = run_episode(
+            adapter,
+            plant,
+            schedule,
+            job["duration_s"],
+            seed,
+            recorder,
+            job["terrain"],
+            job.get("imu_calibration_s", 0.0),
+        )
     finally:
         if recorder is not None:
             recorder.close()
@@ -331,6 +354,7 @@ def run_one(job: dict) -> dict:
     return {
         **{k: job[k] for k in keys},
         "velocity_source": adapter.velocity_source,
+        "imu_calibration_s": job.get("imu_calibration_s", 0.0),
         "robot": robot.name,
         "commands": [list(c) for _, c in schedule],
         "duration_s": job["duration_s"],
@@ -354,6 +378,7 @@ def suite_jobs(
     video=False,
     sensors: P.SensorParams | None = None,
     ranges: dict | None = None,
+    imu_calibration_s: float = 0.0,
 ) -> list[dict]:
     """Every (policy, velocity source, terrain, schedule, seed) as a job for run_one. policies:
     paths, or (name, path) pairs. A sensor-only policy runs once, whatever velocity_sources says.
@@ -394,6 +419,7 @@ def suite_jobs(
                                 else None,
                                 "sensors": sensors,
                                 "ranges": ranges,
+                                "imu_calibration_s": imu_calibration_s,
                             }
                         )
     return jobs

@@ -16,7 +16,7 @@ from quadson_mjx import sim2sim as S
 from quadson_mjx import sim2sim_plant as P
 from quadson_mjx.config import to_json
 from quadson_mjx.env_config import env_config
-from quadson_mjx.quat import axis_quat, quat_to_rpy
+from quadson_mjx.quat import axis_quat, quat_mul, quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.robots import get_robot
 from quadson_mjx.sim2sim_model import plant_model
 
@@ -205,6 +205,29 @@ def test_sensor_only_policy_closed_loop_takes_no_velocity(robot):
     assert all(math.isfinite(row[k]) for k in ("vx_rms", "vy_rms", "yaw_rate_rms"))
 
 
+def test_imu_calibration_standing_in_the_plant_finds_its_mount_and_gyro_bias(robot):
+    """run_episode(imu_calibration_s=1): the loop calibrates its IMU from 50 ticks of the plant's
+    readings standing at home on flat ground. What it finds is the IMU against level ground: the
+    plant's own mounting (drawn as Rx(roll) Ry(pitch); deploy_imu writes Ry Rx) on top of the home
+    stance's tilt (the body pitches about 7 mrad standing), through the plant's attitude noise; and
+    the plant's gyro bias."""
+    adapter = S.LoopAdapter(_SmallSensorPolicy(), "true")
+    plant = S.make_plant(robot, adapter.env_config, "flat", 0.02, seed=4, randomize=False, pushes=False)
+    S.run_episode(adapter, plant, ((0.0, (0.0, 0.0, 0.0)),), 0.02, seed=0, imu_calibration_s=1.0)
+    cal = adapter.loop.imu_calibration
+    assert cal is not None and cal.samples == 50
+    roll, pitch, _ = plant.truth()["rpy"]  # the stance now, the calibration's last tick
+    stance = quat_mul(axis_quat(1, pitch), axis_quat(0, roll))
+    down = np.array([0.0, 0.0, -1.0])
+    want = quat_rotate_inverse(quat_mul(stance, plant.mount), down)
+    got = quat_rotate_inverse(cal.mount_quat, down)
+    assert np.linalg.norm(plant.mount[1:]) > 0.005  # a mounting worth finding (~0.6 deg or more)
+    assert math.acos(min(1.0, float(want @ got))) < 0.002  # rad
+    np.testing.assert_allclose(cal.gyro_bias, plant.gyro_bias, atol=0.005)
+    with pytest.raises(ValueError, match="level ground"):
+        S.run_episode(adapter, plant, ((0.0, (0.0, 0.0, 0.0)),), 0.2, 0, None, "stones", 1.0)
+
+
 def test_randomization_ranges_replace_the_trained_ones(robot, gait_policies):
     # each range pinned to one value: the plant's model is the nominal one scaled by exactly it
     env_cfg = {"randomization": {"mass_scale": (0.85, 1.25), "friction": (0.5, 1.2)}}
@@ -284,6 +307,8 @@ def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, gait_policies, 
         [str(path), "--randomize", "--randomization", "mass_scale=1.1,0.9"],
         [str(path), "--randomize", "--randomization", "friction=0.5"],
         [str(path), "--tiles", "slope_up", "--levels", "3"],  # not trained on the tiled ground
+        [str(path), "--imu-calibration-s", "1"],  # both grounds: the stones are not level
+        [str(path), "--terrain", "flat", "--imu-calibration-s", "-1"],
     ]
     for argv in cases:
         assert main(argv) == 2, argv

@@ -97,6 +97,14 @@ def parse(argv):
         help="for a policy that observes the base velocity: true, zero, command (comma list) or all",
     )
     p.add_argument("--no-sensor-noise", action="store_true", help="ideal IMU and encoders")
+    p.add_argument(
+        "--imu-calibration-s",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="flat ground: stand S seconds at home first and calibrate the loop's IMU (mounting tilt, "
+        "gyro bias) from those readings (quadson_mjx.deploy_imu); 0: none",
+    )
     p.add_argument("--out", default=None, help="output folder (default: runs/sim2sim_<time>)")
     p.add_argument(
         "--mcap", default="first", choices=("first", "all", "none"), help="which runs get an MCAP file"
@@ -119,6 +127,9 @@ def parse(argv):
     check_number("--latency-ms", a.latency_ms, 0.0, MAX_LATENCY_MS)
     check_number("--seeds", a.seeds, 1, 1000)
     check_number("--workers", a.workers, 1, 64)
+    check_number("--imu-calibration-s", a.imu_calibration_s, 0.0, 60.0)
+    if a.imu_calibration_s > 0 and (tiles or a.terrain != "flat"):
+        raise UsageError("--imu-calibration-s needs level ground: add --terrain flat")
     sources = S.VELOCITY_SOURCES if a.velocity_source == "all" else tuple(a.velocity_source.split(","))
     bad = [s for s in sources if s not in S.VELOCITY_SOURCES]
     if bad or not sources:
@@ -202,6 +213,7 @@ def main(argv=None) -> int:
         video=a.video,
         sensors=sensors,
         ranges=a.ranges,
+        imu_calibration_s=a.imu_calibration_s,
     )
     t0 = time.perf_counter()
 
