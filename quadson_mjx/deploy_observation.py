@@ -78,9 +78,9 @@ class ObservationBuilder:
         if self.imu_calibration is not None:
             quat, gyro = self.imu_calibration.apply(quat, gyro)
         q = quat / np.linalg.norm(quat)
+        self._last_quat = q  # the body's orientation (calibrated), for reset_heading()
         if self._pending_heading:
-            self.reset_heading(q)
-        self._last_quat = q
+            self.reset_heading()
         if self.heading is not None:
             q = quat_mul(self.heading, q)
         if resync:

@@ -43,10 +43,12 @@ def _imu(body_quat, body_rate):
 
 
 class _Still:
-    """Stands in for an exported sensor-only joystick policy: its config, a zero action."""
+    """Stands in for an exported joystick policy (sensor-only, or true_state: base velocity and
+    yaw observed): its config, a zero action."""
 
-    def __init__(self):
-        self.meta = {"env_config": json.loads(to_json(_cfg()))}
+    def __init__(self, task="QuadsonJoystickRough"):
+        cfg = apply_overrides(make_task_config(task), ["randomize=false"])
+        self.meta = {"env_config": json.loads(to_json(cfg))}
         self.obs_size = deploy.LoopConfig.from_env_config(self.meta["env_config"]).obs_size
         self.action_size = 12
 
@@ -121,3 +123,23 @@ def test_loop_refuses_a_calibration_of_another_type():
         loop.imu_calibration = (0.03, -0.025)
     loop.imu_calibration = None
     assert loop.imu_calibration is None
+
+
+@pytest.mark.parametrize("explicit", [False, True])
+def test_heading_reset_of_a_calibrated_loop_is_the_bodys_yaw(explicit):
+    # a true_state policy observes roll, pitch and yaw (after the heading reset): with the calibration,
+    # from the IMU's readings, the same as from the body's, whether the heading is reset from a given
+    # reading or from the next step's
+    calibrated = deploy.DeployLoop(_Still("QuadsonJoystickTrueStateRough"))
+    truth = deploy.DeployLoop(_Still("QuadsonJoystickTrueStateRough"))
+    assert "base_rpy" in {e.name for e in truth.config.obs_spec.entries}
+    calibrated.imu_calibration = calibrate_imu(*_standing())
+    home, lin_vel = truth.config.robot.home_motor, np.array([0.2, -0.05, 0.0])
+    body = quat_mul(axis_quat(2, 2.0), quat_mul(axis_quat(1, 0.1), axis_quat(0, -0.05)))
+    imu_quat, gyro = _imu(body, np.array([0.1, 0.2, 0.3]))
+    calibrated.reset_heading(imu_quat if explicit else None)
+    truth.reset_heading(body if explicit else None)
+    for _ in range(3):
+        want = truth.step(body, np.array([0.1, 0.2, 0.3]), home, base_lin_vel=lin_vel).obs
+        got = calibrated.step(imu_quat, gyro, home, base_lin_vel=lin_vel).obs
+        np.testing.assert_allclose(got, want, atol=2e-6)
