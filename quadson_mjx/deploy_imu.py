@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from quadson_mjx.quat import quat_conj, quat_mul, quat_rotate, quat_rotate_inverse
+from quadson_mjx.quat import quat_conj, quat_mul, quat_rotate, quat_rotate_inverse, tilt_quat
 
 # Refusals of a calibration (ValueError). A robot that moved while it was read: the mean gravity
 # direction of the first half of the readings and of the second more than 0.5 deg apart, or the
@@ -44,10 +44,8 @@ class ImuCalibration(NamedTuple):
 
     @property
     def mount_quat(self) -> np.ndarray:
-        """T = Ry(pitch) Rx(roll) as a wxyz quaternion (quadson_mjx.sensors.tilt_quat's)."""
-        r, p = 0.5 * self.roll_pitch[0], 0.5 * self.roll_pitch[1]
-        cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
-        return np.array([cp * cr, cp * sr, sp * cr, -sp * sr])
+        """T = Ry(pitch) Rx(roll) as a wxyz quaternion (quat.tilt_quat, as the sensor model mounts it)."""
+        return tilt_quat(np.asarray(self.roll_pitch, np.float64))
 
     def apply(self, imu_quat_wxyz, gyro) -> tuple[np.ndarray, np.ndarray]:
         """A reading of the IMU -> (the body's orientation (4,), its angular velocity (3,) [rad/s])."""

@@ -73,6 +73,16 @@ def quat_mul(a, b):
     )
 
 
+def tilt_quat(roll_pitch):
+    """(..., 2) roll, pitch [rad] -> (..., 4) wxyz quaternion of R = Ry(pitch) Rx(roll) (ZYX, no
+    yaw): an IMU's mounting tilt (quadson_mjx.sensors draws it, quadson_mjx.deploy_imu removes it)."""
+    xp = namespace(roll_pitch)
+    roll_pitch = xp.asarray(roll_pitch)
+    r, p = roll_pitch[..., 0] / 2, roll_pitch[..., 1] / 2
+    cr, sr, cp, sp = xp.cos(r), xp.sin(r), xp.cos(p), xp.sin(p)
+    return xp.stack([cp * cr, cp * sr, sp * cr, -sp * sr], axis=-1)
+
+
 def axis_quat(axis: int, angle: float) -> np.ndarray:
     """wxyz rotation (numpy, float64) by angle [rad] about body axis 0 (x), 1 (y) or 2 (z)."""
     q = np.zeros(4)

@@ -13,7 +13,7 @@ import numpy as np
 
 from quadson_mjx import terrain
 from quadson_mjx.obs_spec import HISTORY_ENTRIES, lagged, yaw_error_step
-from quadson_mjx.quat import quat_mul, quat_rotate_inverse, quat_to_rpy
+from quadson_mjx.quat import quat_mul, quat_rotate_inverse, quat_to_rpy, tilt_quat
 
 
 def base_state(qpos, qvel):
@@ -71,13 +71,6 @@ def episode_sensor_errors(cfg, timestep: float, rng) -> dict:
         "imu_tilt": jax.random.uniform(k_t, (2,), minval=-s.imu_tilt_rad, maxval=s.imu_tilt_rad),
         "sensor_latency_steps": jnp.round(latency / timestep).astype(jnp.int32),
     }
-
-
-def tilt_quat(roll_pitch):
-    """(..., 2) roll, pitch [rad] -> (..., 4) wxyz quaternion of R = Ry(pitch) Rx(roll) (ZYX, no yaw)."""
-    r, p = roll_pitch[..., 0] / 2, roll_pitch[..., 1] / 2
-    cr, sr, cp, sp = jnp.cos(r), jnp.sin(r), jnp.cos(p), jnp.sin(p)
-    return jnp.stack([cp * cr, cp * sr, sp * cr, -sp * sr], axis=-1)
 
 
 def gravity_direction(imu_quat):

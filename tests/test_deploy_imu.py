@@ -3,6 +3,7 @@ model: readings made by quadson_mjx.sensors (JAX: its tilt quaternion and its gy
 biased as the env draws them) must give back the mounting and the bias, and a calibrated loop fed
 them must observe what an uncalibrated loop fed the body's true orientation and rate observes."""
 
+import functools
 import json
 import math
 
@@ -20,9 +21,11 @@ TILT = np.array([0.03, -0.025])  # roll, pitch [rad]: within the trained 0.035
 BIAS = np.array([0.02, -0.015, 0.028])  # [rad/s]: within the trained 0.03
 
 
-def _cfg():
-    # the sensor-only joystick task; no random noise, so the sensor model's readings are exact
-    return apply_overrides(make_task_config("QuadsonJoystickRough"), ["randomize=false"])
+@functools.cache
+def _cfg(task="QuadsonJoystickRough"):
+    # a joystick task (default: the sensor-only one); no random noise, so the sensor model's
+    # readings are exact
+    return apply_overrides(make_task_config(task), ["randomize=false"])
 
 
 def _imu(body_quat, body_rate):
@@ -47,8 +50,7 @@ class _Still:
     yaw observed): its config, a zero action."""
 
     def __init__(self, task="QuadsonJoystickRough"):
-        cfg = apply_overrides(make_task_config(task), ["randomize=false"])
-        self.meta = {"env_config": json.loads(to_json(cfg))}
+        self.meta = {"env_config": json.loads(to_json(_cfg(task)))}
         self.obs_size = deploy.LoopConfig.from_env_config(self.meta["env_config"]).obs_size
         self.action_size = 12
 
