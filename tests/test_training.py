@@ -270,6 +270,65 @@ def test_script_init_from_bad_inputs_exit_2_in_one_line(interrupted_then_resumed
         assert not (tmp_path / "R").exists()
 
 
+def _learning_rates(records):
+    """step -> the learning rate brax reports for the training epoch before that evaluation (its
+    mean over the epoch's minibatch steps)."""
+    return {step: r["training/learning_rate"] for step, r in records.items() if "training/learning_rate" in r}
+
+
+def test_constant_learning_rate_schedule_keeps_the_rate(uninterrupted):
+    evals, _ = uninterrupted
+    rates = _learning_rates(evals)
+    assert len(rates) == 2 and all(
+        r == pytest.approx(training.ppo_config("test").learning_rate) for r in rates.values()
+    )
+
+
+def test_adaptive_kl_schedule_moves_the_rate_and_resumes_with_it(tmp_path):
+    """ppo.learning_rate_schedule=adaptive_kl: with desired_kl far below any KL the rate divides by
+    1.5 at each minibatch step whose KL is above 0 (all but the first of an epoch's: its policy is
+    the one that collected the data) until learning_rate_range's floor, set to lr0 / 1.5^2. The test
+    preset's epoch is 2 training steps x 2 minibatches: epoch 1 runs at lr0, lr0, lr0 / 1.5 and the
+    floor, epoch 2 at the floor throughout (a fresh start at lr0 would not reach it), also
+    after a resume between the two: the rate is part of the saved training state. Far above any KL,
+    the rate multiplies instead, up to the range's ceiling lr0 x 1.5^2."""
+    base = apply_overrides(training.ppo_config("test"), RUN)
+    lr0 = base.learning_rate
+    shrink = apply_overrides(
+        base,
+        ["learning_rate_schedule=adaptive_kl", "desired_kl=1e-9", f"learning_rate_range={lr0 / 2.25},{lr0}"],
+    )
+    evals = {}
+
+    def stop_after_first(step, record):
+        evals[step] = record
+        if step > 0:
+            raise KeyboardInterrupt
+
+    run_dir = tmp_path / "shrink"
+    with pytest.raises(KeyboardInterrupt):
+        training.train(_small_env(), shrink, run_dir, on_eval=stop_after_first, progress_stream=io.StringIO())
+    resumed = {}
+    training.train(
+        None, None, run_dir, resume=True, progress_stream=io.StringIO(), on_eval=resumed.__setitem__
+    )
+    ((step1, r1),) = _learning_rates(evals).items()
+    step2, r2 = max(_learning_rates(resumed).items())
+    assert step2 > step1
+    assert lr0 / 2.25 < r1 < lr0  # it came down during the first epoch
+    assert r2 == pytest.approx(lr0 / 2.25, rel=1e-6)  # and stays at the floor after the resume
+    grow = apply_overrides(
+        base,
+        ["learning_rate_schedule=adaptive_kl", "desired_kl=5.0", f"learning_rate_range={lr0},{lr0 * 2.25}"],
+    )
+    evals.clear()
+    training.train(
+        _small_env(), grow, tmp_path / "grow", on_eval=evals.__setitem__, progress_stream=io.StringIO()
+    )
+    (_, r1), (_, r2) = sorted(_learning_rates(evals).items())
+    assert lr0 < r1 < lr0 * 2.25 and r2 == pytest.approx(lr0 * 2.25, rel=1e-6)
+
+
 def test_resume_of_a_finished_run_is_refused(interrupted_then_resumed):
     run_dir, *_ = interrupted_then_resumed
     with pytest.raises(ValueError, match="already trained"):
@@ -379,9 +438,16 @@ def test_ppo_config_errors_name_the_key():
         ("max_grad_norm=-1", "ppo.max_grad_norm"),
         ("episode_length=-5", "ppo.episode_length"),
         ("clipping_epsilon=0", "ppo.clipping_epsilon"),
+        ("learning_rate_schedule=cosine", "ppo.learning_rate_schedule"),
+        ("desired_kl=0", "ppo.desired_kl"),
+        ("learning_rate_range=0.01,0.001", "ppo.learning_rate_range"),
     ):
         with pytest.raises(ValueError, match=key.replace("*", r"\*")):
             training.check_ppo_config(apply_overrides(base, [override]))
+    adaptive = ["learning_rate_schedule=adaptive_kl", "learning_rate=0.02"]  # above the range's 1e-2
+    with pytest.raises(ValueError, match=r"ppo\.learning_rate=0\.02 must lie in ppo\.learning_rate_range"):
+        training.check_ppo_config(apply_overrides(base, adaptive))
+    training.check_ppo_config(apply_overrides(base, adaptive[1:]))  # a constant rate has no range
     cfg = apply_overrides(base, ["policy_distribution=gait_normal", "init_noise_std=0.0"])
     with pytest.raises(ValueError, match="init_noise_std"):
         training.check_ppo_config(cfg)

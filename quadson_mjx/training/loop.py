@@ -50,7 +50,12 @@ from quadson_mjx.training.checkpoints import (
 )
 from quadson_mjx.training.monitor import Progress, SignalStop, XlaCompilations
 from quadson_mjx.training.networks import make_networks
-from quadson_mjx.training.presets import check_ppo_config, epoch_steps, local_devices_to_use
+from quadson_mjx.training.presets import (
+    LEARNING_RATE_SCHEDULES,
+    check_ppo_config,
+    epoch_steps,
+    local_devices_to_use,
+)
 from quadson_mjx.training.runs import (
     LOCK_NAME,
     _reopen_log,
@@ -435,6 +440,10 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
                 num_minibatches=ppo_cfg.num_minibatches,
                 num_updates_per_batch=ppo_cfg.num_updates_per_batch,
                 learning_rate=ppo_cfg.learning_rate,
+                learning_rate_schedule=LEARNING_RATE_SCHEDULES[ppo_cfg.learning_rate_schedule],
+                desired_kl=ppo_cfg.desired_kl,
+                learning_rate_schedule_min_lr=ppo_cfg.learning_rate_range[0],
+                learning_rate_schedule_max_lr=ppo_cfg.learning_rate_range[1],
                 entropy_cost=ppo_cfg.entropy_cost,
                 discounting=ppo_cfg.discounting,
                 gae_lambda=ppo_cfg.gae_lambda,

@@ -72,6 +72,15 @@ def ppo_config(preset: str = "gpu", main_job: bool = False) -> ml_collections.Co
         "num_minibatches": 8,
         "num_updates_per_batch": 4,
         "learning_rate": 6e-4,
+        # "constant": learning_rate throughout. "adaptive_kl": brax's adaptive schedule (rsl_rl's, as
+        # legged_gym and mjlab train their quadrupeds): after every minibatch step the rate is
+        # divided by 1.5 when the policy's mean KL divergence from the one that collected the data
+        # is above 2 x desired_kl and multiplied by 1.5 when it is below desired_kl / 2, within
+        # learning_rate_range; learning_rate is where it starts. Its current value is part of the
+        # saved training state, so a resumed run continues with it.
+        "learning_rate_schedule": "constant",
+        "desired_kl": 0.01,
+        "learning_rate_range": (1e-5, 1e-2),
         "entropy_cost": 1e-2,
         "discounting": 0.97,
         "gae_lambda": 0.95,
@@ -163,6 +172,9 @@ PPO_RULES: dict[str, Rule] = {
     "num_minibatches": Rule("int", 1, 4096),
     "num_updates_per_batch": Rule("int", 1, 1000),
     "learning_rate": Rule("number", 0.0, 1.0, lo_open=True),
+    "learning_rate_schedule": Rule("name"),
+    "desired_kl": Rule("number", 0.0, 10.0, lo_open=True),
+    "learning_rate_range": Rule("pair", 0.0, 1.0, lo_open=True),
     "entropy_cost": Rule("number", 0.0, 10.0),
     "discounting": Rule("number", 0.0, 1.0, lo_open=True),
     "gae_lambda": Rule("number", 0.0, 1.0),
@@ -200,6 +212,16 @@ def check_ppo_config(cfg) -> None:
         raise ValueError(
             f"ppo.policy_distribution is {cfg.policy_distribution!r}; choose from {list(POLICY_DISTRIBUTIONS)}"
         )
+    if cfg.learning_rate_schedule not in LEARNING_RATE_SCHEDULES:
+        raise ValueError(
+            f"ppo.learning_rate_schedule is {cfg.learning_rate_schedule!r}; choose from {list(LEARNING_RATE_SCHEDULES)}"
+        )
+    lo, hi = cfg.learning_rate_range
+    if cfg.learning_rate_schedule == "adaptive_kl" and not lo <= cfg.learning_rate <= hi:
+        raise ValueError(
+            f"ppo.learning_rate={cfg.learning_rate} must lie in ppo.learning_rate_range ({lo}, {hi}), "
+            "where the adaptive_kl schedule keeps it"
+        )
     if cfg.multi_device not in ("sharded_jit", "pmap"):
         raise ValueError(f"ppo.multi_device is {cfg.multi_device!r}; choose 'sharded_jit' or 'pmap'")
     devices = local_devices_to_use(cfg) * jax.process_count()
@@ -214,6 +236,8 @@ def check_ppo_config(cfg) -> None:
 
 
 POLICY_DISTRIBUTIONS = ("tanh_normal", "gait_normal")
+# ppo.learning_rate_schedule -> brax's ppo.train(learning_rate_schedule=...)
+LEARNING_RATE_SCHEDULES = {"constant": None, "adaptive_kl": "ADAPTIVE_KL"}
 
 
 def epoch_steps(ppo_cfg) -> tuple[int, int]:
@@ -232,4 +256,7 @@ PPO_KEYS_ADDED = {
     "max_devices": 0,
     "multi_device": "sharded_jit",
     "deterministic_eval": False,
+    "learning_rate_schedule": "constant",
+    "desired_kl": 0.01,
+    "learning_rate_range": [1e-5, 1e-2],  # as config.json holds it
 }

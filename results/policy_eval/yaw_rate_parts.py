@@ -42,7 +42,12 @@ one policy on the stones and on flat ground as evaluated and under one disturban
     python results/policy_eval/yaw_rate_parts.py OUT.json --sensor-groups RUN
 
 the policy on the stones with the sensor errors split in two (SENSOR_GROUPS: the readings' latency
-alone, and every other sensor error without it), on the nominal model without pushes.
+alone, and every other sensor error without it), on the nominal model without pushes;
+
+    python results/policy_eval/yaw_rate_parts.py OUT.json --with RUN OVERRIDE [OVERRIDE ...]
+
+the policy on the stones and on flat ground as evaluated and with the env overrides given (e.g.
+sensor.imu_tilt_rad=0.01: a smaller range of one sensor error, the rest as evaluated).
 """
 
 import json
@@ -212,8 +217,10 @@ def main(json_path: str, n_commands: int = 75, seconds: float = SECONDS, rows=RO
         out.append(row)
         ground = "stones" if terrain == "rough" else "flat"
         labels = SENSOR_GROUPS + FACTORS  # the longer overrides first: FACTORS' are their prefixes
-        ground += next((label for label, o in labels if o == overrides[: len(o)] and overrides), "")
-        ground += ", ideal sensors" if set(IDEAL_SENSORS) <= set(overrides) else ""
+        named = next((label for label, o in labels if o == overrides[: len(o)] and overrides), None)
+        ideal = set(IDEAL_SENSORS) <= set(overrides)
+        ground += named or ("" if ideal or not overrides else ", " + " ".join(overrides))
+        ground += ", ideal sensors" if ideal else ""
         print(
             f"| {label} | {ground} | {rms[0]:.3f} | {rms[1]:.3f} | {rms[2]:.3f} | {rms[3]:.3f} "
             f"| {falls}/{len(commands)} |",
@@ -231,6 +238,12 @@ if __name__ == "__main__":
         main(
             sys.argv[1],
             rows=[(Path(sys.argv[3]).name, sys.argv[3], "policy", "rough", o) for _, o in SENSOR_GROUPS],
+        )
+    elif len(sys.argv) > 4 and sys.argv[2] == "--with":
+        run, extra = sys.argv[3], sys.argv[4:]
+        main(
+            sys.argv[1],
+            rows=[(Path(run).name, run, "policy", t, o) for t in ("rough", "flat") for o in ([], extra)],
         )
     elif len(sys.argv) > 2 and sys.argv[2] == "--runs":
         main(sys.argv[1], rows=run_rows(sys.argv[3:]))
