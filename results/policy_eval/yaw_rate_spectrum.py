@@ -16,6 +16,10 @@ Per run three rows: the stones and flat ground as evaluated (randomized model, s
 pushes), and the stones with the nominal model, no pushes and no sensor errors. Each row: the 75
 commands of quadson_mjx.commands.sweep_commands, one environment each, 20 s, seed 0 (the draws of
 yaw_rate_parts.py, whose rollout and kept steps it uses). `--commands N --seconds S` for a quick check.
+
+`--action-ema A [A ...]` instead: each run on the stones as evaluated, its actions low-passed
+before the env gets them (a_t = A a_(t-1) + (1 - A) policy_t; A = 0: as trained), to see whether the
+fast band is the policy's own chatter (a filter takes it out) or the ground's (it stays).
 """
 
 import argparse
@@ -23,6 +27,7 @@ import json
 import time
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 from yaw_rate_parts import NOMINAL, cycle_steps, kept_cycles, yaw_rate_errors  # this folder's script
 
@@ -62,12 +67,25 @@ def band_rms(err: np.ndarray, keep: np.ndarray, steps_per_cycle: int, first_kept
     return float(np.sqrt(total / max(count, 1))), np.sqrt(bands / max(count, 1))
 
 
+def low_passed(controller, a: float, action_size: int):
+    """The controller with its actions through a first-order low-pass: out = a prev + (1 - a) new."""
+
+    def act(carry, state, key):
+        inner, prev = carry
+        inner, new = controller.act(inner, state, key)
+        out = a * prev + (1.0 - a) * new
+        return (inner, out), out
+
+    return R.Controller(controller.name, lambda: (controller.init(), jnp.zeros(action_size)), act)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out")
     ap.add_argument("runs", nargs="+")
     ap.add_argument("--commands", type=int, default=75)
     ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--action-ema", type=float, nargs="+", default=None)
     args = ap.parse_args()
     commands = sweep_commands().astype(np.float32)[: args.commands]
     heads = " | ".join(f"{lo:g}-{min(hi, 25):g} Hz" for lo, hi in BANDS_HZ)
@@ -76,12 +94,18 @@ def main() -> None:
     rows = []
     for run in args.runs:
         policy, env_cfg, _, _ = load_policy(Path(run))
-        for label, terrain, overrides in CONDITIONS:
+        conditions = (
+            CONDITIONS if args.action_ema is None else [("stones", "rough", [])] * len(args.action_ema)
+        )
+        for i, (label, terrain, overrides) in enumerate(conditions):
             cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
             env = LocomotionEnv(cfg)
             steps_per_cycle, first_kept = cycle_steps(env)
             t0 = time.monotonic()
             controller = R.policy_controller(policy)
+            if args.action_ema is not None:
+                controller = low_passed(controller, args.action_ema[i], env.action_size)
+                label = f"stones, actions low-passed {args.action_ema[i]:g}"
             err, keep, falls = yaw_rate_errors(env, controller, commands, args.seconds, bool(cfg.randomize))
             total, bands = band_rms(err, keep, steps_per_cycle, first_kept, env.ctrl_dt)
             cells = " | ".join(f"{x:.3f}" for x in bands)
@@ -94,6 +118,7 @@ def main() -> None:
                     "run": run,
                     "ground": label,
                     "overrides": overrides,
+                    "action_ema": None if args.action_ema is None else args.action_ema[i],
                     "rms_total": total,
                     "bands_hz": BANDS_HZ,
                     "rms_bands": bands.tolist(),
