@@ -279,6 +279,11 @@ def test_tiles_evaluation_of_the_gait_alone():
         ["--run", "results/policy_h100_sensors", "--envs", "0"],
         ["--run", "results/policy_h100_sensors", "--vx", "5"],
         ["--run", "results/policy_h100_sensors", "--json", "/proc/version/x.json"],
+        # --env: only the evaluation's conditions, and the env config's own checks
+        ["--run", "results/policy_h100_sensors", "--env.obs_history=1"],
+        ["--run", "results/policy_h100_sensors", "--env.sensor.imu_tilt=0.01"],
+        ["--run", "results/policy_h100_sensors", "--env.sensor.imu_tilt_rad=-1"],
+        ["--run", "results/policy_h100_sensors", "--sensor.imu_tilt_rad=0.01"],
     ],
 )
 def test_tiles_eval_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
@@ -290,6 +295,40 @@ def test_tiles_eval_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and err.count("\n") == 1, err
+
+
+def test_tiles_eval_cli_env_overrides_reach_the_trials(capsys, monkeypatch, tmp_path):
+    """--env.sensor.imu_tilt_rad=0.01 (a calibrated IMU) reaches evaluate_tiles's env config, the
+    rest of the run's config unchanged, and the JSON keeps the command line."""
+    import json
+    from pathlib import Path
+
+    from quadson_mjx import tiles_eval
+    from quadson_mjx.cli import tiles_eval as cli
+    from quadson_mjx.training import load_run_config
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)
+    seen = {}
+
+    def fake(env_cfg, policy, levels, *args, **kwargs):
+        seen["cfg"] = env_cfg
+        return []
+
+    monkeypatch.setattr(tiles_eval, "evaluate_tiles", fake)
+    argv = [
+        "--run",
+        "results/policy_h100_sensors",
+        "--env.sensor.imu_tilt_rad=0.01",
+        "--json",
+        str(tmp_path / "e.json"),
+    ]
+    assert cli.main(argv) == 0
+    run_cfg, _ = load_run_config(root / "results/policy_h100_sensors")
+    assert run_cfg.sensor.imu_tilt_rad == pytest.approx(0.035) and seen["cfg"].sensor.imu_tilt_rad == 0.01
+    changed = {k for k in seen["cfg"].to_dict() if seen["cfg"][k] != run_cfg[k]}
+    assert changed == {"sensor"}
+    assert json.loads((tmp_path / "e.json").read_text())["argv"] == argv
 
 
 def test_foxglove_draws_the_default_tiled_ground_decimated():

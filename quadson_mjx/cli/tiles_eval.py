@@ -7,6 +7,12 @@ Every robot starts at its tile's centre with a random heading and holds the forw
 the trial: up the `_up` pyramids, down the `_down` ones. Success: no fall and at least 80 % of the
 commanded distance. Prints one row per tile, its success rate with the rate's 95 % interval (Wilson:
 with 32 robots, 50 % is anything from 34 to 66 %); --json writes them with the command line.
+
+The trials run in the policy's own env config (its sensor errors, randomization and pushes);
+`--env.KEY=VALUE` changes the conditions of the evaluation, and only those (CONDITION_KEYS: the
+sensor model, noise, randomization ranges, pushes, the MJX implementation), e.g.
+`--env.sensor.imu_tilt_rad=0.01`: the robot's IMU calibrated on a level floor (deploy_imu) instead
+of mounted within 2 degrees. Keys that would change what the policy observes or does are refused.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ from pathlib import Path
 from quadson_mjx.errors import UsageError, check_run_dir, check_writable, one_line_errors, write_text_atomic
 
 MAX_SECONDS = 60.0
+# the env config keys (and key prefixes) that set an evaluation's conditions, not the policy's task
+CONDITION_KEYS = ("sensor.", "noise.", "randomization.", "randomize", "push.", "pushes", "impl")
 
 
 def parse(argv):
@@ -38,7 +46,33 @@ def parse(argv):
         help="the nominal model without pushes (default: the run's randomization and pushes)",
     )
     p.add_argument("--json", default=None)
-    return p.parse_args(argv)
+    args, rest = p.parse_known_args(argv)
+    bad = [r for r in rest if not r.startswith("--env.")]
+    if bad:
+        raise UsageError(f"unrecognized arguments: {' '.join(bad)}")
+    overrides = [r[len("--env.") :] for r in rest]
+    for o in overrides:
+        key = o.split("=", 1)[0]
+        if not any(key == c or (c.endswith(".") and key.startswith(c)) for c in CONDITION_KEYS):
+            raise UsageError(
+                f"--env.{key}: only the evaluation's conditions may change ({', '.join(CONDITION_KEYS)}); "
+                "what the policy observes and does comes from its run"
+            )
+    args.env_overrides = overrides
+    return args
+
+
+def conditions_config(env_cfg, overrides):
+    """The run's env config with the evaluation's --env overrides, checked; UsageError naming the key."""
+    from quadson_mjx.config import apply_overrides
+    from quadson_mjx.env_config import check_env_config, with_added_keys
+
+    try:
+        cfg = apply_overrides(with_added_keys(env_cfg), overrides, prefix="env.")
+        check_env_config(cfg)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    return cfg
 
 
 @one_line_errors
@@ -58,6 +92,8 @@ def main(argv=None) -> int:
     from quadson_mjx.training import load_policy
 
     policy, env_cfg, _, _ = load_policy(Path(args.run))
+    if args.env_overrides:
+        env_cfg = conditions_config(env_cfg, args.env_overrides)
     types = None if args.types is None else [t.strip() for t in args.types.split(",")]
     try:
         rows = evaluate_tiles(
