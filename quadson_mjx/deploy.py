@@ -47,7 +47,7 @@ from typing import NamedTuple
 import numpy as np
 
 from quadson_mjx import obs_spec
-from quadson_mjx.deploy_imu import ImuCalibration
+from quadson_mjx.deploy_imu import ImuCalibration, calibrate_imu, needs_calibration
 from quadson_mjx.deploy_observation import ObservationBuilder
 from quadson_mjx.deploy_policy import check_buildable, check_meta, load_policy
 from quadson_mjx.deploy_robots import RobotKinematics, robot_kinematics
@@ -163,6 +163,8 @@ class DeployLoop:
                 )
         check_buildable(c.obs_spec)
         self.needs_lin_vel = "estimator" in c.obs_spec.sensors()
+        # trained for a calibrated IMU (deploy_imu.needs_calibration): no walk before imu_calibration
+        self.needs_imu_calibration = needs_calibration(meta)
         r = c.robot
         safety = safety or SafetyConfig()
         if safety.max_rate_rps is None:
@@ -282,6 +284,13 @@ class DeployLoop:
             raise ValueError(
                 "base_lin_vel is required: this policy observes the base velocity (an estimator's)"
             )
+        if self.needs_imu_calibration and self.imu_calibration is None:
+            tilt = self.policy.meta["trained_sensor_model"]["sensor"]["imu_tilt_rad"]
+            raise ValueError(
+                f"this policy was trained for a calibrated IMU (mounting tilt within {tilt} rad): set "
+                "loop.imu_calibration = deploy_imu.calibrate_imu(quats, gyros) from the robot standing "
+                "still on level ground first"
+            )
         reasons = check_sensors(self.safety.cfg, c.robot.motor_limits, quat, gyro, motor_pos, base_lin_vel)
         if not np.all(np.isfinite(command)):
             reasons.append("command_nonfinite")
@@ -355,6 +364,8 @@ def bench(path: str | Path, n_steps: int = 2000) -> dict:
     }
     if loop.needs_lin_vel:
         sensors["base_lin_vel"] = np.zeros(3)
+    if loop.needs_imu_calibration:  # the level, still reading the bench feeds: no correction
+        loop.imu_calibration = calibrate_imu(np.tile(sensors["imu_quat_wxyz"], (50, 1)), np.zeros((50, 3)))
     for _ in range(50):  # warm-up: first calls allocate
         loop.step(**sensors)
     steps, policy = [], []

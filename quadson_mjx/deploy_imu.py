@@ -31,6 +31,12 @@ from quadson_mjx.quat import quat_conj, quat_mul, quat_rotate, quat_rotate_inver
 # reading, and of a gyro, <= 0.1 rad/s, pass; a step or a push does not). A mounting tilt of more
 # than 10 deg: a robot that is not level, or an IMU mounted askew that should be fixed on the frame.
 MAX_SPREAD_RAD = math.radians(0.5)
+# The mounting tilt an uncalibrated robot may have: a hand-mounted IMU board sits within ~2 deg of
+# the body frame (env_recipes.SENSOR_MODEL's imu_tilt_rad, what policies train with by default). A
+# policy trained with a narrower range (e.g. --env.sensor.imu_tilt_rad=0.01: a calibrated robot's
+# residual) needs the calibration: the deploy loop refuses to walk it without one
+# (needs_calibration).
+MOUNT_TOLERANCE_RAD = 0.035
 MAX_GYRO_DEVIATION_RPS = 0.2
 MAX_TILT_RAD = math.radians(10.0)
 _DOWN = np.array([0.0, 0.0, -1.0])
@@ -101,3 +107,14 @@ def calibrate_imu(imu_quats_wxyz, gyros) -> ImuCalibration:
             f"{math.degrees(MAX_TILT_RAD):.0f}): stand the robot on level ground, or fix the IMU's mounting"
         )
     return ImuCalibration(np.array([roll, pitch]), bias, len(quats), spread)
+
+
+def needs_calibration(meta: dict) -> bool:
+    """Whether the policy of a file with this metadata (export_meta) was trained for a calibrated
+    IMU: a sensor-only policy, randomized, with mounting tilts narrower than MOUNT_TOLERANCE_RAD.
+    Files without the trained sensor model (exported before it was recorded) need none."""
+    trained = meta.get("trained_sensor_model") or {}
+    tilt = (trained.get("sensor") or {}).get("imu_tilt_rad")
+    if trained.get("observation") != "sensors" or not trained.get("randomize") or tilt is None:
+        return False
+    return float(tilt) < MOUNT_TOLERANCE_RAD

@@ -13,7 +13,8 @@ import pytest
 
 from quadson_mjx import deploy, sensors
 from quadson_mjx.config import apply_overrides, to_json
-from quadson_mjx.deploy_imu import calibrate_imu
+from quadson_mjx.deploy_imu import MOUNT_TOLERANCE_RAD, calibrate_imu, needs_calibration
+from quadson_mjx.env_recipes import SENSOR_MODEL
 from quadson_mjx.quat import axis_quat, quat_mul
 from quadson_mjx.tasks import make_task_config
 
@@ -145,3 +146,39 @@ def test_heading_reset_of_a_calibrated_loop_is_the_bodys_yaw(explicit):
         want = truth.step(body, np.array([0.1, 0.2, 0.3]), home, base_lin_vel=lin_vel).obs
         got = calibrated.step(imu_quat, gyro, home, base_lin_vel=lin_vel).obs
         np.testing.assert_allclose(got, want, atol=2e-6)
+
+
+class _Calibrated(_Still):
+    """A sensor-only policy file trained with the mounting tilt of a calibrated robot: its metadata's
+    trained_sensor_model as quadson_mjx.export_meta writes it."""
+
+    def __init__(self, tilt=0.01, randomize=True, task="QuadsonJoystickRough"):
+        super().__init__(task)
+        cfg = apply_overrides(
+            make_task_config(task), [f"sensor.imu_tilt_rad={tilt}", f"randomize={randomize}"]
+        )
+        self.meta["trained_sensor_model"] = {
+            "observation": cfg.observation,
+            "randomize": bool(cfg.randomize),
+            "sensor": json.loads(to_json(cfg.sensor)),
+        }
+
+
+def test_a_policy_trained_for_a_calibrated_imu_does_not_walk_without_one():
+    loop = deploy.DeployLoop(_Calibrated())
+    assert loop.needs_imu_calibration
+    q, g = _imu(np.array([1.0, 0, 0, 0]), np.zeros(3))
+    home = loop.config.robot.home_motor
+    with pytest.raises(ValueError, match=r"calibrated IMU \(mounting tilt within 0\.01 rad\).*calibrate_imu"):
+        loop.step(q, g, home)
+    loop.imu_calibration = calibrate_imu(*_standing())
+    assert loop.step(q, g, home).fault == deploy.Fault.OK
+    # the default range (an IMU mounted by hand, what the recipes train with), no randomization,
+    # a true_state policy, a file from before the trained sensor model was recorded: none needed
+    assert MOUNT_TOLERANCE_RAD == SENSOR_MODEL["imu_tilt_rad"]
+    assert not needs_calibration(_Calibrated(tilt=MOUNT_TOLERANCE_RAD).meta)
+    assert needs_calibration(_Calibrated(tilt=0.0).meta)
+    assert not needs_calibration(_Calibrated(randomize=False).meta)
+    assert not needs_calibration(_Calibrated(task="QuadsonJoystickTrueStateRough").meta)
+    assert not needs_calibration(_Still().meta)
+    assert not deploy.DeployLoop(_Still()).needs_imu_calibration

@@ -316,6 +316,26 @@ def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, gait_policies, 
         assert err.startswith("error: ") and "\n" not in err, (argv, err)
 
 
+def test_cli_refuses_a_policy_trained_for_a_calibrated_imu_without_the_calibration(capsys, tmp_path):
+    # the sensor-only run's config with the narrower mounting tilt a calibrated robot trains with
+    import shutil
+
+    from quadson_mjx import export
+
+    run = tmp_path / "run"
+    shutil.copytree("results/policy_h100_sensors", run, ignore=shutil.ignore_patterns("*.mcap", "*.log"))
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["env"]["sensor"]["imu_tilt_rad"] = 0.01
+    (run / "config.json").write_text(json.dumps(cfg))
+    path = export.export_run(run, tmp_path / "cal.onnx")
+    assert S.LoopAdapter(path).loop.needs_imu_calibration
+    from quadson_mjx.cli.sim2sim import main
+
+    assert main([str(path), "--terrain", "stones"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err and "--imu-calibration-s" in err, err
+
+
 def test_caramel_policy_runs_through_its_deploy_loop_in_the_plant(tmp_path):
     # the plant is robot-generic: Caramel's serial legs, its servos (no second speed limit), its
     # stones (2 cm relief), its termination, through Caramel's deploy loop

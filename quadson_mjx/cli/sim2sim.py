@@ -150,6 +150,10 @@ def parse(argv):
             adapter = S.LoopAdapter(path)
         except (ValueError, KeyError) as e:
             raise UsageError(f"policy {path}: the deploy loop refuses it: {e}") from e
+        if adapter.loop.needs_imu_calibration and not a.imu_calibration_s > 0:
+            raise UsageError(
+                f"policy {path}: trained for a calibrated IMU; add --imu-calibration-s S (on --terrain flat)"
+            )
         try:
             S.check_command_set(adapter, a.commands, path)
         except ValueError as e:
