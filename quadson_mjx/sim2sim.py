@@ -200,6 +200,30 @@ def make_plant(
     return P.Plant(robot, model, servo, sensors or P.SensorParams(), seed, rand, push)
 
 
+def standing_readings(plant: P.Plant, seconds: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The plant's IMU read every dt for `seconds` while the robot stands at home -> (quats (N, 4),
+    gyros (N, 3)), N >= 1; the plant's physics advances."""
+    quats, gyros = [], []
+    for _ in range(max(1, int(round(seconds / dt)))):
+        readings = plant.read()
+        quats.append(readings.imu_quat_wxyz)
+        gyros.append(readings.gyro)
+        plant.advance(dt)
+    return np.array(quats), np.array(gyros)
+
+
+def level_twin(plant: P.Plant, seed: int) -> P.Plant:
+    """A twin of `plant` standing at home on the flat scene (the nominal model, no pushes) with the
+    plant's IMU: its mounting and gyro bias as the plant drew them for this run, its noise. The
+    level floor a robot is calibrated on before it walks onto other ground."""
+    twin = P.Plant(
+        plant.robot, P.plant_model(plant.robot, "flat"), plant.servo, plant.sensors, seed + 1_000_003
+    )
+    twin.reset()
+    twin.mount, twin.gyro_bias = plant.mount.copy(), plant.gyro_bias.copy()
+    return twin
+
+
 def run_episode(
     adapter: LoopAdapter,
     plant: P.Plant,
@@ -212,9 +236,11 @@ def run_episode(
 ) -> dict:
     """One closed-loop run: reset the plant at the terrain's start (start_xy) with a seeded heading,
     start the loop on its sensor readings, then every ctrl_dt: read, step the loop, send, advance
-    the physics. -> the run's metrics (see the module docstring). imu_calibration_s > 0 (flat ground
-    only): first the robot stands that long at home while the IMU is read each tick, and the loop
-    takes its deploy_imu calibration from those readings, as a robot does on a level floor."""
+    the physics. -> the run's metrics (see the module docstring). imu_calibration_s > 0: first the
+    robot stands that long at home on level ground while the IMU is read each tick, and the loop
+    takes its deploy_imu calibration from those readings, as a robot does on a level floor before
+    its walk: on flat ground in the plant itself, elsewhere in a level twin of it
+    (level_floor_readings)."""
     term = {
         "max_tilt_rad": math.pi / 4,
         "min_height_m": 0.1,
@@ -227,15 +253,8 @@ def run_episode(
     yaw = float(rng.uniform(-math.pi, math.pi))
     plant.reset(start_xy(terrain, adapter.env_config, rng), yaw)
     if imu_calibration_s > 0:
-        if terrain != "flat":
-            raise ValueError(f"an IMU calibration needs level ground; the run is on {terrain}")
-        quats, gyros = [], []
-        for _ in range(max(1, int(round(imu_calibration_s / dt)))):  # standing at home, a tick apart
-            readings = plant.read()
-            quats.append(readings.imu_quat_wxyz)
-            gyros.append(readings.gyro)
-            plant.advance(dt)
-        adapter.loop.imu_calibration = calibrate_imu(quats, gyros)
+        floor = plant if terrain == "flat" else level_twin(plant, seed)
+        adapter.loop.imu_calibration = calibrate_imu(*standing_readings(floor, imu_calibration_s, dt))
     adapter.reset(plant.read())
     n = int(round(duration_s / dt))
     err, vx, forces, stance = [], [], [], []
