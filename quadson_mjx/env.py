@@ -317,7 +317,8 @@ class LocomotionEnv(Env):
 
     def reset(self, rng) -> State:
         """A new episode at the home pose: at the origin, or on the tiled ground on a random tile
-        column (tiles.type_weights) and a level in [0, tiles.max_init_level] (reset_on_tile)."""
+        column (tiles.type_weights) and a level in [tiles.min_init_level, tiles.max_init_level]
+        (reset_on_tile)."""
         if self._tiles is None:
             k_info, _ = jax.random.split(rng)
             return self._start(self._home_qpos, k_info)
@@ -326,7 +327,8 @@ class LocomotionEnv(Env):
             tile_type = jax.random.randint(k_type, (), 0, len(self._tiles.types))
         else:
             tile_type = terrain_tiles.draw_type(k_type, self._type_shares)
-        level = jax.random.randint(k_level, (), 0, self._config.tiles.max_init_level + 1)
+        t = self._config.tiles
+        level = jax.random.randint(k_level, (), t.min_init_level, t.max_init_level + 1)
         return self.reset_on_tile(k, tile_type, level)
 
     def reset_on_tile(self, rng, tile_type, level) -> State:

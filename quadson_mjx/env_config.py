@@ -422,6 +422,7 @@ ENV_RULES: dict[str, Rule] = {
     "tiles.border_m": Rule("number", 0.0, 20.0, _M),  # and a whole number of cells
     "tiles.cell_m": Rule("number", 0.005, 0.2, _M),
     "tiles.seed": Rule("int", 0, 2**31 - 1),
+    "tiles.min_init_level": Rule("int", 0, 99, "(a level)"),  # and <= max_init_level
     "tiles.max_init_level": Rule("int", 0, 99, "(a level)"),  # and < levels
     "tiles.spawn_margin_m": Rule("number", 0.0, 10.0, _M),  # and < tile_m / 2
     "tiles.curriculum": Rule("bool"),

@@ -218,8 +218,9 @@ def write_hfield_bin(path, heights: np.ndarray) -> None:
 # types: comma-separated tile types, one column each (TILE_TYPES); levels: rows of rising
 # difficulty; border_m: flat ground around them (a robot on an outer tile can walk off it before
 # the field's edge ends its episode, termination.off_field_margin_m). A robot keeps its column and
-# starts at a level drawn in [0, max_init_level] (legged_gym starts at 5 of 10 rows; 4 here: the
-# rows before the 15-degree slopes and 2.4 cm steps), with a random heading, anywhere on its tile
+# starts at a level drawn in [min_init_level, max_init_level] (legged_gym starts at 5 of 10 rows; 0-4
+# here: the rows before the 15-degree slopes and 2.4 cm steps; a fine-tune of a trained policy
+# starts its robots where the source's ended, e.g. 6-9), with a random heading, anywhere on its tile
 # at least spawn_margin_m inside the edges. With curriculum, at every episode end its level goes up
 # one when it covered curriculum_up of the distance its commands asked for and did not fall, down
 # one when it fell or covered less than curriculum_down (curriculum_levels).
@@ -232,6 +233,7 @@ TILES = {
     # against every prism under its bounding box (18 on 2 cm cells, 8 on 4 cm)
     "cell_m": 0.02,
     "seed": 0,
+    "min_init_level": 0,
     "max_init_level": 4,
     "spawn_margin_m": 0.25,
     "curriculum": True,
@@ -263,6 +265,10 @@ def tile_spec(cfg) -> TerrainSpec:
     if t.max_init_level >= t.levels:
         raise ValueError(
             f"env.tiles.max_init_level must be < env.tiles.levels ({t.levels}), got {t.max_init_level}"
+        )
+    if t.get("min_init_level", 0) > t.max_init_level:
+        raise ValueError(
+            f"env.tiles.min_init_level ({t.min_init_level}) must be <= env.tiles.max_init_level ({t.max_init_level})"
         )
     if t.spawn_margin_m >= t.tile_m / 2:
         raise ValueError(

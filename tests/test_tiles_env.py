@@ -71,6 +71,7 @@ def test_config_errors_name_the_key():
     for tiles, words in (
         ({"types": "flat,lava"}, "env.tiles"),
         ({"max_init_level": 3}, "env.tiles.max_init_level"),
+        ({"min_init_level": 2, "max_init_level": 1}, "env.tiles.min_init_level"),
         ({"spawn_margin_m": 0.5}, "env.tiles.spawn_margin_m"),
         ({"curriculum_down": 0.9}, "env.tiles.curriculum_down"),
         ({"border_m": 0.015}, "border_m"),
@@ -127,13 +128,18 @@ def test_spawns_on_their_tile_and_never_inside_the_ground(env, spawn):
 
 def test_first_resets_follow_the_type_weights():
     """env.tiles.type_weights reaches the environment's reset: with every weight 0 but waves' and
-    obstacles', each robot starts on one of those two columns, at a level in [0, max_init_level]."""
+    obstacles', each robot starts on one of those two columns, at a level in [0, max_init_level]
+    (tiles.min_init_level: [min_init_level, max_init_level])."""
     weights = ",".join(f"{t}:{int(t in ('waves', 'obstacles'))}" for t in terrain_tiles.TILE_TYPES)
     env = LocomotionEnv(_config(type_weights=weights))
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(4), 16))
     kinds = {terrain_tiles.TILE_TYPES[i] for i in np.asarray(states.info["tile_type"])}
     assert kinds == {"waves", "obstacles"}
     assert np.all(np.asarray(states.info["tile_level"]) <= env.config.tiles.max_init_level)
+    # a fine-tune's start where its source's robots ended: every level of [min, max] and no other
+    env = LocomotionEnv(_config(type_weights=weights, min_init_level=1, max_init_level=2))
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(4), 16))
+    assert set(np.asarray(states.info["tile_level"]).tolist()) == {1, 2}
 
 
 def test_critic_ground_scan_is_mujocos_ground_around_the_robot(env):
@@ -352,3 +358,26 @@ def test_foxglove_draws_the_default_tiled_ground_decimated():
     assert (xs[-1], ys[-1], z[-1, -1]) == pytest.approx((rx, ry, data[-1, -1]))
     assert (xs[11], ys[7], z[7, 11]) == pytest.approx((-rx + 0.44, -ry + 0.28, data[14, 22]), abs=1e-6)
     assert foxglove_scene._hfield_triangles(m, g) is not None  # the message builds from them
+
+
+def test_init_from_names_where_the_source_curriculum_ended(tmp_path):
+    """A fine-tune of a tiles run prints the mean level per type of the source's robots at its last
+    logged evaluation beside the levels the new run starts at; nothing for a run without them."""
+    from quadson_mjx.mcap_log import McapLog
+    from quadson_mjx.training.runs import source_curriculum_line
+
+    tiles = _config(min_init_level=1, max_init_level=2).tiles
+    with McapLog(tmp_path / "train.mcap") as log:
+        log.log("/train/metrics", {"progress": {"step": 0.0}}, 1)
+        log.log("/train/metrics", {"curriculum": {"slope_up_level_mean": 3.0, "slope_up_success": 0.5}}, 2)
+        log.log("/train/metrics", {"curriculum": {"slope_up_level_mean": 7.25, "flat_level_mean": 6.0}}, 3)
+    line = source_curriculum_line(tmp_path, tiles)
+    assert line == (
+        "curriculum: the source's robots ended at mean levels slope_up 7.2, flat 6.0; this run starts "
+        "its robots at levels 1-2 (env.tiles.min_init_level, max_init_level)"
+    )
+    assert source_curriculum_line(tmp_path / "none", tiles) is None
+    (tmp_path / "flat").mkdir()
+    with McapLog(tmp_path / "flat" / "train.mcap") as log:
+        log.log("/train/metrics", {"progress": {"step": 0.0}}, 1)
+    assert source_curriculum_line(tmp_path / "flat", tiles) is None

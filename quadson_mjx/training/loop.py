@@ -65,6 +65,7 @@ from quadson_mjx.training.runs import (
     load_run_config,
     resume_point,
     run_dir_lock,
+    source_curriculum_line,
 )
 from quadson_mjx.training.widen import init_params_for
 
@@ -270,6 +271,8 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
                 "(earlier ticks read with zero weights)"
             )
         print(f"init from {init_ckpt}: {restored}", file=stream)
+        if env_cfg.terrain == "tiles" and (line := source_curriculum_line(source, env_cfg.tiles)):
+            print(line, file=stream)
     devices = local_devices_to_use(ppo_cfg)
     if jax.process_count() > 1:  # every process its rows of the single-process run's keys
         state.epoch_keys = lambda epoch: compat.process_epoch_keys(ppo_cfg.seed, epoch, devices)

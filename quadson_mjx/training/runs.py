@@ -216,6 +216,34 @@ def init_point(source: Path) -> tuple[Path, Path, int]:
     return source, ckpt, step
 
 
+def source_curriculum_line(source: Path, tiles) -> str | None:
+    """For --init-from on the tiled ground: one line with the mean curriculum level per tile type
+    of the source run's robots at its last logged evaluation (its train.mcap's curriculum/ metrics)
+    and the levels this run starts its robots at (tiles: the new env config's `tiles`); None when
+    the source logged no curriculum. A fine-tune whose robots restart far below where the source's
+    ended trains on easier ground than it will be asked to walk (docs/results.md, a calibrated IMU)."""
+    from quadson_mjx.mcap_check import read_messages
+
+    log = Path(source) / "train.mcap"
+    if not log.is_file():
+        return None
+    ended = {}
+    for _, _, m in read_messages(log, topics=("/train/metrics",)):
+        levels = {
+            k[: -len("_level_mean")]: v
+            for k, v in m.get("curriculum", {}).items()
+            if k.endswith("_level_mean")
+        }
+        ended = levels or ended
+    if not ended:
+        return None
+    means = ", ".join(f"{t} {v:.1f}" for t, v in ended.items())
+    return (
+        f"curriculum: the source's robots ended at mean levels {means}; this run starts its robots at "
+        f"levels {tiles.min_init_level}-{tiles.max_init_level} (env.tiles.min_init_level, max_init_level)"
+    )
+
+
 def _free_name(run_dir: Path, stem: str, suffix: str) -> Path:
     n = 1
     while (run_dir / f"{stem}_{n}{suffix}").exists():
