@@ -320,6 +320,8 @@ def test_cli_bad_inputs_are_one_line_and_exit_status_2(exported, gait_policies, 
         [str(path), "--randomize", "--randomization", "friction=0.5"],
         [str(path), "--tiles", "slope_up", "--levels", "3"],  # not trained on the tiled ground
         [str(path), "--terrain", "flat", "--imu-calibration-s", "-1"],
+        [str(path), "--imu-mount-tilt", "nan"],
+        [str(path), "--imu-mount-tilt", "0.5"],
     ]
     for argv in cases:
         assert main(argv) == 2, argv

@@ -98,6 +98,13 @@ def parse(argv):
     )
     p.add_argument("--no-sensor-noise", action="store_true", help="ideal IMU and encoders")
     p.add_argument(
+        "--imu-mount-tilt",
+        type=float,
+        default=sim2sim_plant.SensorParams.mount_tilt,
+        metavar="RAD",
+        help="the IMU's mounting roll and pitch on the frame, uniform in +-RAD per run (default %(default)s)",
+    )
+    p.add_argument(
         "--imu-calibration-s",
         type=float,
         default=0.0,
@@ -129,6 +136,7 @@ def parse(argv):
     check_number("--seeds", a.seeds, 1, 1000)
     check_number("--workers", a.workers, 1, 64)
     check_number("--imu-calibration-s", a.imu_calibration_s, 0.0, 60.0)
+    check_number("--imu-mount-tilt", a.imu_mount_tilt, 0.0, 0.2)
     sources = S.VELOCITY_SOURCES if a.velocity_source == "all" else tuple(a.velocity_source.split(","))
     bad = [s for s in sources if s not in S.VELOCITY_SOURCES]
     if bad or not sources:
@@ -199,7 +207,7 @@ def main(argv=None) -> int:
         (f"{n}{i}" if names.count(n) > 1 else n, p)
         for i, (n, p) in enumerate(zip(names, a.policy, strict=True))
     ]
-    sensors = sim2sim_plant.SensorParams(enabled=not a.no_sensor_noise)
+    sensors = sim2sim_plant.SensorParams(enabled=not a.no_sensor_noise, mount_tilt=a.imu_mount_tilt)
     kw = dict(
         terrains=a.terrains,
         which=a.commands,
