@@ -386,11 +386,17 @@ def bench(path: str | Path, n_steps: int = 2000) -> dict:
 
 
 def describe(loop: DeployLoop) -> str:
-    """One line: robot, observation, sizes, control period."""
+    """One line: robot, observation, sizes, control period, and what the loop needs besides the
+    sensors (an estimator's base velocity, an IMU calibration)."""
     c = loop.config
+    needs = [
+        *(["base_lin_vel from an estimator"] if loop.needs_lin_vel else []),
+        *(["an IMU calibration (loop.imu_calibration)"] if loop.needs_imu_calibration else []),
+    ]
     return (
         f"{c.robot.name}, {c.observation} observation ({c.obs_size} values), {c.action_size} actions, "
         f"ctrl_dt {c.ctrl_dt} s, rate limit {loop.safety.cfg.max_rate_rps:g} rad/s"
+        + (f"; needs {' and '.join(needs)}" if needs else "")
     )
 
 

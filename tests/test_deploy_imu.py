@@ -166,7 +166,13 @@ class _Calibrated(_Still):
 
 def test_a_policy_trained_for_a_calibrated_imu_does_not_walk_without_one():
     loop = deploy.DeployLoop(_Calibrated())
-    assert loop.needs_imu_calibration
+    assert loop.needs_imu_calibration and deploy.describe(loop).endswith(
+        "; needs an IMU calibration (loop.imu_calibration)"
+    )
+    assert "needs base_lin_vel from an estimator" in deploy.describe(
+        deploy.DeployLoop(_Still("QuadsonJoystickTrueStateRough"))
+    )
+    assert "needs" not in deploy.describe(deploy.DeployLoop(_Still()))
     q, g = _imu(np.array([1.0, 0, 0, 0]), np.zeros(3))
     home = loop.config.robot.home_motor
     with pytest.raises(ValueError, match=r"calibrated IMU \(mounting tilt within 0\.01 rad\).*calibrate_imu"):
