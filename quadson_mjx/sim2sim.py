@@ -240,7 +240,7 @@ def run_episode(
     robot stands that long at home on level ground while the IMU is read each tick, and the loop
     takes its deploy_imu calibration from those readings, as a robot does on a level floor before
     its walk: on flat ground in the plant itself, elsewhere in a level twin of it
-    (level_floor_readings)."""
+    (level_twin)."""
     term = {
         "max_tilt_rad": math.pi / 4,
         "min_height_m": 0.1,
