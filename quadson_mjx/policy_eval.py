@@ -53,16 +53,28 @@ def fed_velocity(policy, env, source: str):
     return fed
 
 
+def eval_config(env_cfg, terrain: str, overrides=()):
+    """A run's env config as evaluated: on `terrain`, with the evaluation's overrides ("KEY=VALUE")."""
+    return apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
+
+
 def evaluate_one(
-    run_dir, commands: np.ndarray, terrain: str, seconds: float, velocity_source: str = "true", seed: int = 0
+    run_dir,
+    commands: np.ndarray,
+    terrain: str,
+    seconds: float,
+    velocity_source: str = "true",
+    seed: int = 0,
+    overrides=(),
 ) -> dict:
     """One policy over commands (N, 3) (vx [m/s], vy [m/s], yaw rate [rad/s]; one environment each,
     its own randomized model when the run's config randomizes; pushes as configured) on `terrain`
-    for `seconds`. -> a row: per-axis RMS over the kept steps, falls (environments that fell at
+    for `seconds`, its env config with `overrides` ("KEY=VALUE", the evaluation's conditions:
+    cli.conditions). -> a row: per-axis RMS over the kept steps, falls (environments that fell at
     least once / N), off_field (environments that reached the stone field's edge, a truncation),
     and per-command RMS and falls."""
     policy, env_cfg, _, _ = load_policy(Path(run_dir))
-    cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}"], prefix="env.")
+    cfg = eval_config(env_cfg, terrain, overrides)
     env = LocomotionEnv(cfg)
     policy = fed_velocity(policy, env, velocity_source)
     n_envs, n_steps = len(commands), int(round(seconds / env.ctrl_dt))
@@ -94,6 +106,7 @@ def evaluate_one(
         "observation": cfg.observation,
         "velocity_source": velocity_source,
         "terrain": terrain,
+        "overrides": list(overrides),
         "envs": n_envs,
         "seconds": seconds,
         "rms_vx": float(rms[0]),
@@ -115,13 +128,19 @@ def evaluate_one(
 
 
 def evaluate(
-    policies, commands, terrains=("flat", "rough"), seconds: float = 20.0, replicas: int = 1, seed: int = 0
+    policies,
+    commands,
+    terrains=("flat", "rough"),
+    seconds: float = 20.0,
+    replicas: int = 1,
+    seed: int = 0,
+    overrides=(),
 ):
     """policies: [(run_dir, velocity_source)], commands (N, 3) each repeated `replicas` times ->
-    rows of evaluate_one for every policy x terrain (the same commands and seeds for all)."""
+    rows of evaluate_one for every policy x terrain (the same commands, seeds and overrides for all)."""
     cmds = np.repeat(np.asarray(commands, np.float32), replicas, axis=0)
     return [
-        evaluate_one(run, cmds, terrain, seconds, source, seed)
+        evaluate_one(run, cmds, terrain, seconds, source, seed, overrides)
         for terrain in terrains
         for run, source in policies
     ]

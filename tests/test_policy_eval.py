@@ -48,6 +48,12 @@ def test_fed_velocity_refuses_a_sensor_policy():
         ["--policy", "results/policy_h100_joystick", "--seconds", "nan"],
         ["--policy", "results/policy_h100_joystick", "--replicas", "0"],
         ["--policy", "results/policy_h100_joystick", "--out", "/proc/version/x.json"],
+        # --env: the evaluation's conditions only (cli.conditions), checked by the env config
+        ["--policy", "results/policy_h100_sensors", "--env.obs_history=1"],
+        ["--policy", "results/policy_h100_sensors", "--env.reward.weights.termination=-5"],
+        ["--policy", "results/policy_h100_sensors", "--env.sensor.imu_tilt=0.01"],
+        ["--policy", "results/policy_h100_sensors", "--env.sensor.imu_tilt_rad=nan"],
+        ["--policy", "results/policy_h100_sensors", "--imu_tilt_rad=0.01"],
     ],
 )
 def test_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
@@ -57,3 +63,33 @@ def test_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and err.count("\n") == 1, err
+
+
+def test_cli_env_overrides_reach_every_evaluation(monkeypatch, tmp_path):
+    """--env.sensor.imu_tilt_rad=0.01 goes to policy_eval.evaluate for all the policies, and
+    evaluate_one's env config is the run's with the terrain and the override, nothing else."""
+    import json
+    from pathlib import Path
+
+    from quadson_mjx import policy_eval
+    from quadson_mjx.training import load_run_config
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])
+    seen = {}
+
+    def fake(runs, commands, terrains, seconds, replicas, seed, overrides):
+        seen.update(runs=runs, overrides=overrides)
+        return []
+
+    monkeypatch.setattr(policy_eval, "evaluate", fake)
+    argv = ["--policy", "results/policy_h100_sensors", "--policy", "results/policy_h100_joystick:zero"]
+    argv += ["--env.sensor.imu_tilt_rad=0.01", "--out", str(tmp_path / "e.json")]
+    assert cli.main(argv) == 0
+    assert seen["overrides"] == ["sensor.imu_tilt_rad=0.01"] and len(seen["runs"]) == 2
+    assert json.loads((tmp_path / "e.json").read_text())["argv"] == argv
+    # the config evaluate_one builds from them: only the sensor model differs (the run trained on
+    # the stones, the terrain evaluated here)
+    run_cfg, _ = load_run_config(Path("results/policy_h100_sensors"))
+    cfg = policy_eval.eval_config(run_cfg, "rough", seen["overrides"])
+    assert cfg.sensor.imu_tilt_rad == 0.01 and run_cfg.sensor.imu_tilt_rad == pytest.approx(0.035)
+    assert run_cfg.terrain == "rough" and {k for k in cfg.to_dict() if cfg[k] != run_cfg[k]} == {"sensor"}

@@ -5,7 +5,10 @@
 
 Each --policy is RUN_DIR[:VELOCITY_SOURCE]; the source (true, zero, command) replaces a true_state
 policy's base-velocity input (quadson_mjx.policy_eval). Every policy sees the same commands (the
-sweep of quadson-rollout, 75 commands, each `--replicas` times), seeds and randomized models.
+sweep of quadson-rollout, 75 commands, each `--replicas` times), seeds and randomized models, in
+each run's own env config; `--env.KEY=VALUE` changes the evaluation's conditions for all of them,
+and only those (quadson_mjx.cli.conditions: sensor model, noise, randomization, pushes, the MJX
+implementation), e.g. `--env.sensor.imu_tilt_rad=0.01` for a calibrated IMU.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import json
 import sys
 from pathlib import Path
 
+from quadson_mjx.cli.conditions import condition_overrides, conditions_config
 from quadson_mjx.errors import UsageError, check_writable, one_line_errors, write_text_atomic
 
 MAX_SECONDS = 600.0  # a trial longer than this is a typo, not an evaluation
@@ -28,7 +32,9 @@ def parse(argv):
     p.add_argument("--replicas", type=int, default=4, help="environments per command of the sweep")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="JSON file of the rows")
-    return p.parse_args(argv)
+    args, rest = p.parse_known_args(argv)
+    args.env_overrides = condition_overrides(rest)
+    return args
 
 
 def policies(args) -> list[tuple[str, str]]:
@@ -44,6 +50,10 @@ def policies(args) -> list[tuple[str, str]]:
             )
         if not (Path(run) / "config.json").is_file():
             raise UsageError(f"--policy {spec}: {run} is not a training run directory (no config.json)")
+        if args.env_overrides:  # refused before any evaluation starts
+            from quadson_mjx.training import load_run_config
+
+            conditions_config(load_run_config(Path(run))[0], args.env_overrides)
         out.append((run, source))
     return out
 
@@ -61,7 +71,9 @@ def main(argv=None) -> int:
     from quadson_mjx.commands import sweep_commands
     from quadson_mjx.policy_eval import evaluate
 
-    rows = evaluate(runs, sweep_commands(), args.terrain, args.seconds, args.replicas, args.seed)
+    rows = evaluate(
+        runs, sweep_commands(), args.terrain, args.seconds, args.replicas, args.seed, args.env_overrides
+    )
     print(f"{'policy':48s} {'terrain':7s} {'vx':>6s} {'vy':>6s} {'yaw':>6s} {'falls':>9s} {'edge':>5s}")
     for r in rows:
         name = f"{r['run']} ({r['observation']}, velocity {r['velocity_source']})"

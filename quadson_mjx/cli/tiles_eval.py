@@ -9,7 +9,7 @@ commanded distance. Prints one row per tile, its success rate with the rate's 95
 with 32 robots, 50 % is anything from 34 to 66 %); --json writes them with the command line.
 
 The trials run in the policy's own env config (its sensor errors, randomization and pushes);
-`--env.KEY=VALUE` changes the conditions of the evaluation, and only those (CONDITION_KEYS: the
+`--env.KEY=VALUE` changes the conditions of the evaluation, and only those (cli.conditions: the
 sensor model, noise, randomization ranges, pushes, the MJX implementation), e.g.
 `--env.sensor.imu_tilt_rad=0.01`: the robot's IMU calibrated on a level floor (deploy_imu) instead
 of mounted within 2 degrees. Keys that would change what the policy observes or does are refused.
@@ -22,11 +22,10 @@ import json
 import sys
 from pathlib import Path
 
+from quadson_mjx.cli.conditions import condition_overrides, conditions_config
 from quadson_mjx.errors import UsageError, check_run_dir, check_writable, one_line_errors, write_text_atomic
 
 MAX_SECONDS = 60.0
-# the env config keys (and key prefixes) that set an evaluation's conditions, not the policy's task
-CONDITION_KEYS = ("sensor.", "noise.", "randomization.", "randomize", "push.", "pushes", "impl")
 
 
 def parse(argv):
@@ -47,32 +46,8 @@ def parse(argv):
     )
     p.add_argument("--json", default=None)
     args, rest = p.parse_known_args(argv)
-    bad = [r for r in rest if not r.startswith("--env.")]
-    if bad:
-        raise UsageError(f"unrecognized arguments: {' '.join(bad)}")
-    overrides = [r[len("--env.") :] for r in rest]
-    for o in overrides:
-        key = o.split("=", 1)[0]
-        if not any(key == c or (c.endswith(".") and key.startswith(c)) for c in CONDITION_KEYS):
-            raise UsageError(
-                f"--env.{key}: only the evaluation's conditions may change ({', '.join(CONDITION_KEYS)}); "
-                "what the policy observes and does comes from its run"
-            )
-    args.env_overrides = overrides
+    args.env_overrides = condition_overrides(rest)
     return args
-
-
-def conditions_config(env_cfg, overrides):
-    """The run's env config with the evaluation's --env overrides, checked; UsageError naming the key."""
-    from quadson_mjx.config import apply_overrides
-    from quadson_mjx.env_config import check_env_config, with_added_keys
-
-    try:
-        cfg = apply_overrides(with_added_keys(env_cfg), overrides, prefix="env.")
-        check_env_config(cfg)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-    return cfg
 
 
 @one_line_errors

@@ -1,0 +1,42 @@
+"""An evaluation's conditions on the command line: `--env.KEY=VALUE` for the keys of the env config
+that set the world a trained policy is evaluated in (CONDITION_KEYS: the sensor model, noise, the
+randomization ranges, pushes, the MJX implementation), never what the policy observes or does.
+Used by quadson-tiles-eval and quadson-policy-eval, e.g. `--env.sensor.imu_tilt_rad=0.01`: the
+IMU's mounting as a calibrated robot keeps it (deploy_imu) instead of within 2 degrees."""
+
+from __future__ import annotations
+
+from quadson_mjx.errors import UsageError
+
+# the env config keys (and key prefixes) that set an evaluation's conditions, not the policy's task
+CONDITION_KEYS = ("sensor.", "noise.", "randomization.", "randomize", "push.", "pushes", "impl")
+
+
+def condition_overrides(rest: list[str]) -> list[str]:
+    """The arguments argparse left over -> the overrides "KEY=VALUE" of their `--env.KEY=VALUE`;
+    UsageError for any other argument and for a key outside CONDITION_KEYS."""
+    bad = [r for r in rest if not r.startswith("--env.")]
+    if bad:
+        raise UsageError(f"unrecognized arguments: {' '.join(bad)}")
+    overrides = [r[len("--env.") :] for r in rest]
+    for o in overrides:
+        key = o.split("=", 1)[0]
+        if not any(key == c or (c.endswith(".") and key.startswith(c)) for c in CONDITION_KEYS):
+            raise UsageError(
+                f"--env.{key}: only the evaluation's conditions may change ({', '.join(CONDITION_KEYS)}); "
+                "what the policy observes and does comes from its run"
+            )
+    return overrides
+
+
+def conditions_config(env_cfg, overrides: list[str]):
+    """A run's env config with the evaluation's overrides, checked; UsageError naming the key."""
+    from quadson_mjx.config import apply_overrides
+    from quadson_mjx.env_config import check_env_config, with_added_keys
+
+    try:
+        cfg = apply_overrides(with_added_keys(env_cfg), overrides, prefix="env.")
+        check_env_config(cfg)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    return cfg
