@@ -18,6 +18,7 @@ floor and the home stance are, the bias's drift since).
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -51,13 +52,22 @@ class ImuCalibration(NamedTuple):
     @property
     def mount_quat(self) -> np.ndarray:
         """T = Ry(pitch) Rx(roll) as a wxyz quaternion (quat.tilt_quat, as the sensor model mounts it)."""
-        return tilt_quat(np.asarray(self.roll_pitch, np.float64))
+        return _mount(*(float(a) for a in self.roll_pitch))[0].copy()
 
     def apply(self, imu_quat_wxyz, gyro) -> tuple[np.ndarray, np.ndarray]:
         """A reading of the IMU -> (the body's orientation (4,), its angular velocity (3,) [rad/s])."""
-        t = self.mount_quat
-        quat = quat_mul(np.asarray(imu_quat_wxyz, np.float64), quat_conj(t))
-        return quat, quat_rotate(t, np.asarray(gyro, np.float64) - self.gyro_bias)
+        _, t_conj, t_mat = _mount(*(float(a) for a in self.roll_pitch))
+        quat = quat_mul(np.asarray(imu_quat_wxyz, np.float64), t_conj)
+        return quat, t_mat @ (np.asarray(gyro, np.float64) - self.gyro_bias)
+
+
+@functools.lru_cache(maxsize=8)
+def _mount(roll: float, pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mounting T of a calibration, computed once (apply runs every control tick): its wxyz
+    quaternion, the conjugate and its rotation matrix (columns: T's images of the body axes)."""
+    t = tilt_quat(np.array([roll, pitch]))
+    mat = np.stack([quat_rotate(t, e) for e in np.eye(3)], axis=1)
+    return t, quat_conj(t), mat
 
 
 def calibrate_imu(imu_quats_wxyz, gyros) -> ImuCalibration:
