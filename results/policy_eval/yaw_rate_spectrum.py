@@ -20,6 +20,14 @@ yaw_rate_parts.py, whose rollout and kept steps it uses). `--commands N --second
 `--action-ema A [A ...]` instead: each run on the stones as evaluated, its actions low-passed
 before the env gets them (a_t = A a_(t-1) + (1 - A) policy_t; A = 0: as trained), to see whether the
 fast band is the policy's own chatter (a filter takes it out) or the ground's (it stays).
+
+`--sampling` instead: each run on the stones and on flat ground as evaluated, the yaw-rate error
+measured two ways from the same rollout: the gyro's z at the control tick (what policy_eval
+keeps: one instantaneous sample every 20 ms) and the base's mean z rate over the control step
+(the rotation from the step's start to its end as a rotation vector over ctrl_dt, in the body
+frame at the step's start). The second cannot see motion faster than the control step; the
+difference is the body's vibration within a step, which the 50 Hz sample folds into the 0-25 Hz
+bands (aliasing).
 """
 
 import argparse
@@ -27,6 +35,7 @@ import json
 import time
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from yaw_rate_parts import NOMINAL, cycle_steps, kept_cycles, yaw_rate_errors  # this folder's script
@@ -36,6 +45,7 @@ from quadson_mjx.commands import sweep_commands
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
+from quadson_mjx.quat import quat_conj, quat_mul
 from quadson_mjx.training import load_policy
 
 BANDS_HZ = [(0.0, 1.0), (1.0, 3.5), (3.5, 8.0), (8.0, 25.01)]
@@ -79,6 +89,67 @@ def low_passed(controller, a: float, action_size: int):
     return R.Controller(controller.name, lambda: (controller.init(), jnp.zeros(action_size)), act)
 
 
+def step_mean_rate_z(quat_wxyz: np.ndarray, dt: float) -> np.ndarray:
+    """quat (T, B, 4) of the base at each control step's end (wxyz) -> (T, B): the mean body z
+    rate over each step (the relative rotation from the previous step's end, as a rotation vector
+    in the body frame at the step's start, over dt); the first step repeats the second's."""
+    q = quat_mul(quat_conj(quat_wxyz[:-1]), quat_wxyz[1:])  # body frame at the step's start
+    q = np.where(q[..., :1] < 0.0, -q, q)  # the shorter way round
+    v = q[..., 1:]
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(norm, q[..., :1])
+    rotvec = np.where(norm > 1e-12, v * angle / np.maximum(norm, 1e-12), 2.0 * v)
+    rate = rotvec[..., 2] / dt
+    return np.concatenate([rate[:1], rate], axis=0)
+
+
+def sampling_rows(run: str, commands: np.ndarray, seconds: float) -> list[dict]:
+    """The --sampling rows of one run: per ground, the error from the tick's gyro sample and from
+    the step's mean rate, over the same kept whole cycles."""
+    policy, env_cfg, _, _ = load_policy(Path(run))
+    rows = []
+    for label, terrain, overrides in CONDITIONS[:2]:
+        cfg = apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
+        env = LocomotionEnv(cfg)
+        steps_per_cycle, first_kept = cycle_steps(env)
+        t0 = time.monotonic()
+        segs = list(
+            R.run(
+                env,
+                R.policy_controller(policy),
+                jax.random.PRNGKey(0),
+                len(commands),
+                int(round(seconds / env.ctrl_dt)),
+                segment_steps=250,
+                command=commands,
+                randomize=bool(cfg.randomize),
+            )
+        )
+        cmd = np.concatenate([s.command[..., 2] for _, s in segs])
+        sample = np.concatenate([s.ang_vel[..., 2] for _, s in segs])
+        mean = step_mean_rate_z(
+            np.concatenate([s.qpos[..., 3:7] for _, s in segs]).astype(np.float64), env.ctrl_dt
+        )
+        keep = np.cumsum(np.concatenate([s.done for _, s in segs]), axis=0) == 0
+        falls = int(np.concatenate([s.fall for _, s in segs]).any(axis=0).sum())
+        for how, rate in (("gyro sample at the tick", sample), ("mean rate over the step", mean)):
+            total, bands = band_rms(rate - cmd, keep, steps_per_cycle, first_kept, env.ctrl_dt)
+            rows.append(
+                {
+                    "run": run,
+                    "ground": f"{label}, {how}",
+                    "overrides": overrides,
+                    "rms_total": total,
+                    "bands_hz": BANDS_HZ,
+                    "rms_bands": bands.tolist(),
+                    "falls": falls,
+                    "envs": len(commands),
+                    "wall_s": round(time.monotonic() - t0, 1),
+                }
+            )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out")
@@ -86,13 +157,21 @@ def main() -> None:
     ap.add_argument("--commands", type=int, default=75)
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--action-ema", type=float, nargs="+", default=None)
+    ap.add_argument("--sampling", action="store_true")
     args = ap.parse_args()
     commands = sweep_commands().astype(np.float32)[: args.commands]
     heads = " | ".join(f"{lo:g}-{min(hi, 25):g} Hz" for lo, hi in BANDS_HZ)
     print(f"| policy | ground | yaw-rate error RMS [rad/s] | {heads} | falls |")
     print("|---|---|---|" + "---|" * len(BANDS_HZ) + "---|")
     rows = []
-    for run in args.runs:
+    for run in args.runs if args.sampling else []:
+        for row in sampling_rows(run, commands, args.seconds):
+            cells = " | ".join(f"{x:.3f}" for x in row["rms_bands"])
+            print(
+                f"| {Path(run).name} | {row['ground']} | {row['rms_total']:.3f} | {cells} | {row['falls']}/{len(commands)} |"
+            )
+            rows.append(row)
+    for run in [] if args.sampling else args.runs:
         policy, env_cfg, _, _ = load_policy(Path(run))
         conditions = (
             CONDITIONS if args.action_ema is None else [("stones", "rough", [])] * len(args.action_ema)
