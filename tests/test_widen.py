@@ -1,6 +1,7 @@
-"""--init-from into a longer observation history (training/widen.py): the widened networks compute
-what the source's did, the normaliser's statistics of an earlier tick are its current tick's, and
-every other change of the observation is refused."""
+"""--init-from into a longer observation history or a critic with a ground scan
+(training/widen.py): the widened networks compute what the source's did, the normaliser's
+statistics of an earlier tick are its current tick's, a scan cell's are the source's ground under
+the feet pooled, and every other change of the observation is refused."""
 
 from pathlib import Path
 
@@ -26,9 +27,9 @@ def widened():
     env_cfg = apply_overrides(src_cfg, ["obs_history=3"])
     env = make_env(env_cfg)
     ckpt, _ = training.latest_checkpoint(SOURCE)
-    params, history_from = init_params_for(ckpt, SOURCE, env, env_cfg, ppo_cfg)
+    params, widened_from = init_params_for(ckpt, SOURCE, env, env_cfg, ppo_cfg)
     source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
-    return src_env, env, ppo_cfg, source, params, history_from
+    return src_env, env, ppo_cfg, source, params, widened_from
 
 
 def _observations(src_env, env, rng):
@@ -48,10 +49,9 @@ def _observations(src_env, env, rng):
     return old, new
 
 
-def test_widened_networks_compute_what_the_source_did(widened):
-    src_env, env, ppo_cfg, source, params, history_from = widened
-    assert history_from == 1
-    assert env.obs_spec.size == src_env.obs_spec.size + 2 * 42  # two earlier ticks of 3 + 3 + 12 + 12 + 12
+def _same_outputs(src_env, env, ppo_cfg, source, params):
+    """The widened networks' actions and values against the source's on the same observations (new
+    entries random): equal up to float32 rounding. -> (the new observations, the key)."""
     old_obs, new_obs = _observations(src_env, env, np.random.default_rng(0))
     nets_old = training.make_networks(src_env.observation_size, src_env.action_size, ppo_cfg)
     nets_new = training.make_networks(env.observation_size, env.action_size, ppo_cfg)
@@ -63,6 +63,16 @@ def test_widened_networks_compute_what_the_source_did(widened):
     v_old = nets_old.value_network.apply(source[0], source[2], old_obs)
     v_new = nets_new.value_network.apply(params[0], params[2], new_obs)
     np.testing.assert_allclose(np.asarray(v_new), np.asarray(v_old), rtol=1e-6, atol=1e-5)
+    return new_obs, key
+
+
+def test_widened_networks_compute_what_the_source_did(widened):
+    src_env, env, ppo_cfg, source, params, widened_from = widened
+    assert widened_from == {"obs_history": 1}
+    assert env.obs_spec.size == src_env.obs_spec.size + 2 * 42  # two earlier ticks of 3 + 3 + 12 + 12 + 12
+    new_obs, key = _same_outputs(src_env, env, ppo_cfg, source, params)
+    nets_new = training.make_networks(env.observation_size, env.action_size, ppo_cfg)
+    a_new = ppo_networks.make_inference_fn(nets_new)(params, deterministic=True)(new_obs, key)[0]
     # and the earlier ticks do reach the networks once their weights move: not a dead input
     moved = jax.tree.map(lambda x: x, params)
     kernel = np.array(moved[1]["params"]["hidden_0"]["kernel"])
@@ -99,7 +109,8 @@ def _spec(history=1, yaw_error=False):
 
 def test_only_earlier_ticks_can_be_added():
     sources = row_sources(_spec(1), _spec(3))
-    assert [own for _, own in sources].count(False) == 10  # 2 ticks x 5 history entries
+    assert [src.own for src in sources].count(False) == 10  # 2 ticks x 5 history entries
+    assert not any(src.pooled for src in sources)
     with pytest.raises(ValueError, match="observes yaw_error, which the source did not"):
         row_sources(_spec(1), _spec(1, yaw_error=True))
     with pytest.raises(ValueError, match="lacks the source's gravity@-1"):
@@ -109,6 +120,63 @@ def test_only_earlier_ticks_can_be_added():
         row_sources(_spec(1), resized)
     with pytest.raises(ValueError, match="dictionary observation"):
         widen_params(None, {"state": _spec(1)}, {"state": _spec(3)}, None)
+
+
+@pytest.fixture(scope="module")
+def scanned():
+    """The committed tiles policy's final checkpoint widened into a run whose critic also sees a
+    5 x 5 ground scan."""
+    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
+    src_env = make_env(src_cfg)
+    env = make_env(apply_overrides(src_cfg, ["critic_scan_points=5"]))
+    ckpt, _ = training.latest_checkpoint(SOURCE)
+    params, widened_from = init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
+    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
+    return src_env, env, ppo_cfg, source, params, widened_from
+
+
+def test_a_critic_scan_added_starts_where_the_source_was(scanned):
+    src_env, env, ppo_cfg, source, params, widened_from = scanned
+    assert widened_from == {"critic_scan_points": 0}
+    assert env.obs_spec == src_env.obs_spec
+    assert env.critic_spec.size == src_env.critic_spec.size + 25
+    _same_outputs(src_env, env, ppo_cfg, source, params)
+    scan = env.critic_spec.slices()["ground_scan"]
+    assert not np.any(np.asarray(params[2]["params"]["hidden_0"]["kernel"])[scan])
+    # the scan's statistics by hand from the source's ground under the four feet (mean and std as
+    # stored): their values pooled, so the variance is the mean of theirs plus their means' spread
+    feet = src_env.critic_spec.slices()["ground_under_feet"]
+    m = np.asarray(source[0].mean["privileged_state"], np.float64)[feet]
+    sd = np.asarray(source[0].std["privileged_state"], np.float64)[feet]
+    want_mean = m.mean()
+    want_std = np.sqrt(np.mean(sd**2) + np.mean((m - want_mean) ** 2))
+    got_mean = np.asarray(params[0].mean["privileged_state"])[scan]
+    got_std = np.asarray(params[0].std["privileged_state"])[scan]
+    np.testing.assert_allclose(got_mean, np.full(25, want_mean), rtol=1e-5)
+    np.testing.assert_allclose(got_std, np.full(25, want_std), rtol=1e-4)
+    assert want_std > sd.min()  # not one foot's statistics
+    # the statistics brax derives from them on its next update agree with the std given
+    count = float(params[0].count.hi) * 2.0**32 + float(params[0].count.lo)  # brax's 64-bit count
+    sv = np.asarray(params[0].summed_variance["privileged_state"], np.float64)[scan]
+    np.testing.assert_allclose(np.sqrt(sv / count), got_std, rtol=1e-4)
+    # every entry the source had keeps its statistics
+    for name, rows in src_env.critic_spec.slices().items():
+        for field in ("mean", "std", "summed_variance"):
+            old = np.asarray(getattr(source[0], field)["privileged_state"])[rows]
+            new = np.asarray(getattr(params[0], field)["privileged_state"])[env.critic_spec.slices()[name]]
+            np.testing.assert_array_equal(new, old, err_msg=f"{field} {name}")
+
+
+def test_a_scan_cannot_be_resized_or_dropped():
+    legs = ("fl", "fr", "rl", "rr")
+    actor = _spec(1)
+    five, seven = (obs_spec.privileged_observation(legs, actor, n) for n in (5, 7))
+    none = obs_spec.privileged_observation(legs, actor, 0)
+    assert [src.pooled for src in row_sources(none, five)][-1]
+    with pytest.raises(ValueError, match="entry ground_scan has 49 values here, 25 in the source"):
+        row_sources(five, seven)
+    with pytest.raises(ValueError, match="lacks the source's ground_scan"):
+        row_sources(five, none)
 
 
 def test_train_refuses_another_observation_and_leaves_no_run(tmp_path):

@@ -99,8 +99,9 @@ def train(
     seed's random ones, for fine-tuning a trained policy under changed configs; the optimiser's
     moments and the step count start afresh. Its networks must match this run's (the observation
     and action sizes, ppo.policy_hidden and the like): a ValueError names the mismatch; the one
-    exception is a longer env.obs_history than the source's, whose earlier ticks the networks read
-    with zero weights (training/widen.py; "widened_from_obs_history" in the record). The source,
+    exceptions are a longer env.obs_history than the source's and a critic's ground scan added
+    (env.critic_scan_points), which the networks read with zero weights (training/widen.py;
+    "widened_from_obs_history", "widened_from_critic_scan_points" in the record). The source,
     its step and the checkpoint's SHA-256 are kept in config.json ("init_from", kept on resume) and
     in the log's start event, and the step-0 checkpoint is the source's parameters.
 
@@ -234,11 +235,10 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             print(f"warp: building {build.modules} kernel modules on {build.workers} threads", file=stream)
         if init_from is not None:  # before anything is written: a mismatch leaves no run behind
             try:
-                init_params, history_from = init_params_for(init_ckpt, source, env, env_cfg, ppo_cfg)
+                init_params, widened = init_params_for(init_ckpt, source, env, env_cfg, ppo_cfg)
             except ValueError as e:
                 raise ValueError(f"init_from {init_ckpt} does not fit this run's networks: {e}") from None
-            if history_from is not None:
-                origin["widened_from_obs_history"] = history_from
+            origin.update({f"widened_from_{k}": v for k, v in widened.items()})
     except BaseException:
         if created:
             _remove_if_unused(run_dir)
@@ -269,6 +269,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             restored += (
                 f"; its obs_history {origin['widened_from_obs_history']} widened to {env_cfg.obs_history} "
                 "(earlier ticks read with zero weights)"
+            )
+        if "widened_from_critic_scan_points" in origin:
+            restored += (
+                f"; its critic's ground scan of {origin['widened_from_critic_scan_points']} points a side widened "
+                f"to {env_cfg.critic_scan_points} (the new cells read with zero weights)"
             )
         print(f"init from {init_ckpt}: {restored}", file=stream)
         if env_cfg.terrain == "tiles" and (line := source_curriculum_line(source, env_cfg.tiles)):

@@ -1,27 +1,45 @@
-"""Fine-tuning a policy with a longer observation history than it was trained with (--init-from a
-run of env.obs_history=1 into a run of obs_history=3).
+"""Fine-tuning a policy whose observation has grown since it was trained (--init-from a run of
+env.obs_history=1 into a run of obs_history=3, or a critic without a ground scan into one with
+env.critic_scan_points=n).
 
 The new observation holds every entry of the old one plus earlier ticks of some of them
-("gyro@-1", obs_spec.lagged). The widened networks read the old entries with their trained
-weights and the new ones with zero weights, so at the start of the fine-tune they compute exactly
-what the source's did; the observation normaliser gives each earlier tick the statistics of its
-current tick (the same signal a tick later). Any other difference between the observations (an
-entry dropped, renamed, resized, or new and not an earlier tick of an old one) is refused: a
-weight of zero would not be a neutral start for it, and its normaliser statistics would be made up.
+("gyro@-1", obs_spec.lagged) and, for the critic, the ground scan. The widened networks read the
+old entries with their trained weights and the new ones with zero weights, so at the start of the
+fine-tune they compute exactly what the source's did. The observation normaliser gives each
+earlier tick the statistics of its current tick (the same signal a tick later), and each cell of
+the ground scan the statistics of the source's ground under the four feet pooled (POOLED_FROM: the
+same quantity, the ground at a point less the ground under the base, at points near the base).
+Any other difference between the observations (an entry dropped, renamed, resized, or new and
+neither of those) is refused: a weight of zero would not be a neutral start for it, and its
+normaliser statistics would be made up.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from quadson_mjx.obs_spec import Spec, unlagged
 from quadson_mjx.training.networks import POLICY_OBS_KEY, VALUE_OBS_KEY
 
+# a new entry -> the source's entry whose rows' statistics, pooled, each of its values starts with
+POOLED_FROM = {"ground_scan": "ground_under_feet"}
 
-def row_sources(old: Spec, new: Spec) -> list[tuple[slice, bool]]:
-    """For each entry of `new` in order: (the rows of `old` it takes its statistics from, whether
-    it is an entry of `old` itself (True) or an earlier tick of one (False)). ValueError naming the
-    entries when `new` is not `old` plus earlier ticks of its entries."""
+
+class Source(NamedTuple):
+    """Where one entry of the new observation comes from."""
+
+    rows: slice  # the rows of the old observation it takes its statistics from
+    own: bool  # True: it is that entry of the old observation (its weights kept); False: new
+    size: int  # its number of values (a pooled entry's differs from its rows')
+    pooled: bool  # every value takes the rows' statistics pooled (POOLED_FROM); else row by row
+
+
+def row_sources(old: Spec, new: Spec) -> list[Source]:
+    """For each entry of `new` in order, its Source: an entry of `old` itself, an earlier tick of
+    one (row by row), or a POOLED_FROM entry. ValueError naming the entries when `new` is not `old`
+    plus such entries."""
     old_rows = old.slices()
     new_names = {e.name for e in new.entries}
     dropped = [e.name for e in old.entries if e.name not in new_names]
@@ -34,6 +52,9 @@ def row_sources(old: Spec, new: Spec) -> list[tuple[slice, bool]]:
             rows, own = old_rows[e.name], True
         elif base != e.name and base in old_rows:
             rows, own = old_rows[base], False
+        elif POOLED_FROM.get(e.name) in old_rows:
+            sources.append(Source(old_rows[POOLED_FROM[e.name]], False, e.size, True))
+            continue
         else:
             unknown.append(e.name)
             continue
@@ -41,21 +62,49 @@ def row_sources(old: Spec, new: Spec) -> list[tuple[slice, bool]]:
             raise ValueError(
                 f"entry {e.name} has {e.size} values here, {rows.stop - rows.start} in the source"
             )
-        sources.append((rows, own))
+        sources.append(Source(rows, own, e.size, False))
     if unknown:
         raise ValueError(
             f"this run observes {', '.join(unknown)}, which the source did not: only earlier ticks of the "
-            "source's entries (a longer env.obs_history) can be added"
+            "source's entries (a longer env.obs_history) and the critic's ground scan can be added"
         )
     return sources
 
 
-def widen_rows(x: np.ndarray, sources, own_only: bool) -> np.ndarray:
-    """The rows of x (old size, ...) rearranged for the new observation: each entry's own rows, and
-    for an earlier tick either its current tick's rows (own_only False: normaliser statistics) or
-    zeros (own_only True: a first layer's weights)."""
-    x = np.asarray(x)
-    parts = [x[rows] if own or not own_only else np.zeros_like(x[rows]) for rows, own in sources]
+def _count(count) -> float:
+    """The normaliser's sample count as a number (brax keeps it as a 64-bit {"hi", "lo"} pair)."""
+    if isinstance(count, dict):
+        return float(np.asarray(count["hi"], np.float64) * 2.0**32 + np.asarray(count["lo"], np.float64))
+    return float(np.asarray(count))
+
+
+def widen_statistics(mean, summed_variance, std, count: float, eps: float, sources: list[Source]):
+    """The normaliser's (mean, summed_variance, std) for the new observation from the old one's
+    (brax's Welford statistics over `count` samples, std = sqrt(summed_variance / count + eps)):
+    row by row from each Source's rows, or for a pooled one the statistics of all its rows' values
+    together (the variance includes the spread of the rows' means) in each of its values."""
+    mean, summed_variance, std = (np.asarray(x) for x in (mean, summed_variance, std))
+    parts = []
+    for src in sources:
+        if not src.pooled:
+            parts.append([x[src.rows] for x in (mean, summed_variance, std)])
+            continue
+        m_rows = mean[src.rows].astype(np.float64)
+        m = m_rows.mean()
+        variance = np.mean(summed_variance[src.rows] / count) + np.mean(np.square(m_rows - m))
+        sd = np.clip(np.sqrt(variance + eps), 1e-6, 1e6)  # as running_statistics.update computes it
+        parts.append([np.full(src.size, v, mean.dtype) for v in (m, variance * count, sd)])
+    return [np.concatenate([p[i] for p in parts], axis=0) for i in range(3)]
+
+
+def first_layer_rows(kernel, sources: list[Source]) -> np.ndarray:
+    """A first layer's kernel (old observation size, width) for the new observation: each old
+    entry's trained rows, zeros for every new entry's."""
+    kernel = np.asarray(kernel)
+    parts = [
+        kernel[src.rows] if src.own else np.zeros((src.size,) + kernel.shape[1:], kernel.dtype)
+        for src in sources
+    ]
     return np.concatenate(parts, axis=0)
 
 
@@ -64,7 +113,7 @@ def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template):
     Spec}, brax's dictionary observation: "state" for the policy, "privileged_state" for the value
     network) -> the same params for networks that read `new`, restored into `template` (the new
     networks' fresh params, networks.params_template). ValueError (row_sources) when `new` is not
-    `old` plus earlier ticks of its entries."""
+    `old` plus earlier ticks of its entries and pooled entries."""
     from flax import serialization
 
     if set(old) != {POLICY_OBS_KEY, VALUE_OBS_KEY} or set(new) != set(old):
@@ -72,19 +121,26 @@ def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template):
     state = serialization.to_state_dict(params)
     sources = {k: row_sources(old[k], new[k]) for k in old}
     norm = state["0"]
-    for field in ("mean", "std", "summed_variance"):
-        norm[field] = {k: widen_rows(v, sources[k], own_only=False) for k, v in norm[field].items()}
+    count = _count(norm["count"])  # Welford's statistics (brax's default; the EMA mode is not used)
+    eps = float(np.asarray(norm.get("std_eps", 0.0)))
+    for k in old:
+        norm["mean"][k], norm["summed_variance"][k], norm["std"][k] = widen_statistics(
+            norm["mean"][k], norm["summed_variance"][k], norm["std"][k], count, eps, sources[k]
+        )
     for index, key in (("1", POLICY_OBS_KEY), ("2", VALUE_OBS_KEY)):
         first = state[index]["params"]["hidden_0"]
-        first["kernel"] = widen_rows(first["kernel"], sources[key], own_only=True)
+        first["kernel"] = first_layer_rows(first["kernel"], sources[key])
     return serialization.from_state_dict(template, state)
 
 
+WIDENED_KEYS = ("obs_history", "critic_scan_points")  # the env configs a widening may change
+
+
 def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
-    """-> (params of checkpoint `ckpt` of run `source_run` for this run's networks, the source's
-    obs_history when they were widened to this run's longer one (else None)). env: this run's
-    environment, env_cfg its config. ValueError when the checkpoint does not fit: other networks,
-    another observation, a shorter history."""
+    """-> (params of checkpoint `ckpt` of run `source_run` for this run's networks, {key: the
+    source's value} of the WIDENED_KEYS that differ when the networks were widened (else {})).
+    env: this run's environment, env_cfg its config. ValueError when the checkpoint does not fit:
+    other networks, another observation, a shorter history, a ground scan removed or resized."""
     from quadson_mjx import compat
     from quadson_mjx.envs import make_env
     from quadson_mjx.training.checkpoints import load_checkpoint
@@ -92,16 +148,23 @@ def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
     from quadson_mjx.training.runs import load_run_config
 
     src_cfg, _ = load_run_config(source_run)
-    if src_cfg.get("obs_history", 1) == env_cfg.get("obs_history", 1):
-        return load_checkpoint(ckpt, env.observation_size, env.action_size, ppo_cfg), None
+    defaults = {"obs_history": 1, "critic_scan_points": 0}
+    changed = {
+        k: src_cfg.get(k, defaults[k])
+        for k in WIDENED_KEYS
+        if src_cfg.get(k, defaults[k]) != env_cfg.get(k, defaults[k])
+    }
+    if not changed:
+        return load_checkpoint(ckpt, env.observation_size, env.action_size, ppo_cfg), {}
     with compat.mjx_local_device():
         src_env = make_env(src_cfg)
     if src_env.critic_spec is None or env.critic_spec is None:
+        named = " and ".join(f"env.{k}" for k in changed)
         raise ValueError(
-            "another env.obs_history than the source's can only be widened for an asymmetric actor-critic"
+            f"another {named} than the source's can only be widened for an asymmetric actor-critic"
         )
     old = {POLICY_OBS_KEY: src_env.obs_spec, VALUE_OBS_KEY: src_env.critic_spec}
     new = {POLICY_OBS_KEY: env.obs_spec, VALUE_OBS_KEY: env.critic_spec}
     params = load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
     template = params_template(env.observation_size, env.action_size, ppo_cfg)
-    return widen_params(params, old, new, template), int(src_cfg.obs_history)
+    return widen_params(params, old, new, template), {k: int(v) for k, v in changed.items()}
