@@ -54,6 +54,7 @@ def test_fed_velocity_refuses_a_sensor_policy():
         ["--policy", "results/policy_h100_sensors", "--env.sensor.imu_tilt=0.01"],
         ["--policy", "results/policy_h100_sensors", "--env.sensor.imu_tilt_rad=nan"],
         ["--policy", "results/policy_h100_sensors", "--imu_tilt_rad=0.01"],
+        ["--policy", "results/policy_h100_sensors", "--env.sim_dt=0.003"],  # ctrl_dt 0.02 not a multiple
     ],
 )
 def test_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
@@ -83,13 +84,18 @@ def test_cli_env_overrides_reach_every_evaluation(monkeypatch, tmp_path):
 
     monkeypatch.setattr(policy_eval, "evaluate", fake)
     argv = ["--policy", "results/policy_h100_sensors", "--policy", "results/policy_h100_joystick:zero"]
-    argv += ["--env.sensor.imu_tilt_rad=0.01", "--out", str(tmp_path / "e.json")]
+    argv += ["--env.sensor.imu_tilt_rad=0.01", "--env.sim_dt=0.002", "--out", str(tmp_path / "e.json")]
     assert cli.main(argv) == 0
-    assert seen["overrides"] == ["sensor.imu_tilt_rad=0.01"] and len(seen["runs"]) == 2
+    assert seen["overrides"] == ["sensor.imu_tilt_rad=0.01", "sim_dt=0.002"] and len(seen["runs"]) == 2
     assert json.loads((tmp_path / "e.json").read_text())["argv"] == argv
     # the config evaluate_one builds from them: only the sensor model differs (the run trained on
     # the stones, the terrain evaluated here)
     run_cfg, _ = load_run_config(Path("results/policy_h100_sensors"))
     cfg = policy_eval.eval_config(run_cfg, "rough", seen["overrides"])
     assert cfg.sensor.imu_tilt_rad == 0.01 and run_cfg.sensor.imu_tilt_rad == pytest.approx(0.035)
-    assert run_cfg.terrain == "rough" and {k for k in cfg.to_dict() if cfg[k] != run_cfg[k]} == {"sensor"}
+    assert cfg.sim_dt == 0.002 and run_cfg.sim_dt == 0.0  # the physics step; the policy's ctrl_dt stays
+    assert cfg.ctrl_dt == run_cfg.ctrl_dt
+    assert run_cfg.terrain == "rough" and {k for k in cfg.to_dict() if cfg[k] != run_cfg[k]} == {
+        "sensor",
+        "sim_dt",
+    }
