@@ -134,20 +134,24 @@ def sampling_rows(run: str, commands: np.ndarray, seconds: float) -> list[dict]:
         falls = int(np.concatenate([s.fall for _, s in segs]).any(axis=0).sum())
         for how, rate in (("gyro sample at the tick", sample), ("mean rate over the step", mean)):
             total, bands = band_rms(rate - cmd, keep, steps_per_cycle, first_kept, env.ctrl_dt)
-            rows.append(
-                {
-                    "run": run,
-                    "ground": f"{label}, {how}",
-                    "overrides": overrides,
-                    "rms_total": total,
-                    "bands_hz": BANDS_HZ,
-                    "rms_bands": bands.tolist(),
-                    "falls": falls,
-                    "envs": len(commands),
-                    "wall_s": round(time.monotonic() - t0, 1),
-                }
-            )
+            rows.append(row(run, f"{label}, {how}", overrides, total, bands, falls, len(commands), t0))
     return rows
+
+
+def row(run, ground, overrides, total, bands, falls, envs, t0, **extra) -> dict:
+    """One row of the JSON output."""
+    return {
+        "run": run,
+        "ground": ground,
+        "overrides": overrides,
+        **extra,
+        "rms_total": total,
+        "bands_hz": BANDS_HZ,
+        "rms_bands": bands.tolist(),
+        "falls": falls,
+        "envs": envs,
+        "wall_s": round(time.monotonic() - t0, 1),
+    }
 
 
 def main() -> None:
@@ -165,12 +169,12 @@ def main() -> None:
     print("|---|---|---|" + "---|" * len(BANDS_HZ) + "---|")
     rows = []
     for run in args.runs if args.sampling else []:
-        for row in sampling_rows(run, commands, args.seconds):
-            cells = " | ".join(f"{x:.3f}" for x in row["rms_bands"])
+        for r in sampling_rows(run, commands, args.seconds):
+            cells = " | ".join(f"{x:.3f}" for x in r["rms_bands"])
             print(
-                f"| {Path(run).name} | {row['ground']} | {row['rms_total']:.3f} | {cells} | {row['falls']}/{len(commands)} |"
+                f"| {Path(run).name} | {r['ground']} | {r['rms_total']:.3f} | {cells} | {r['falls']}/{len(commands)} |"
             )
-            rows.append(row)
+            rows.append(r)
     for run in [] if args.sampling else args.runs:
         policy, env_cfg, _, _ = load_policy(Path(run))
         conditions = (
@@ -192,20 +196,8 @@ def main() -> None:
                 f"| {Path(run).name} | {label} | {total:.3f} | {cells} | {falls}/{len(commands)} |",
                 flush=True,
             )
-            rows.append(
-                {
-                    "run": run,
-                    "ground": label,
-                    "overrides": overrides,
-                    "action_ema": None if args.action_ema is None else args.action_ema[i],
-                    "rms_total": total,
-                    "bands_hz": BANDS_HZ,
-                    "rms_bands": bands.tolist(),
-                    "falls": falls,
-                    "envs": len(commands),
-                    "wall_s": round(time.monotonic() - t0, 1),
-                }
-            )
+            ema = None if args.action_ema is None else args.action_ema[i]
+            rows.append(row(run, label, overrides, total, bands, falls, len(commands), t0, action_ema=ema))
     settings = {"seconds": args.seconds, "commands": len(commands), "seed": 0}
     Path(args.out).write_text(json.dumps({"settings": settings, "rows": rows}, indent=1) + "\n")
 
