@@ -98,7 +98,7 @@ def train(
     observation normaliser (newest intact checkpoint of a directory) start this run instead of the
     seed's random ones, for fine-tuning a trained policy under changed configs; the optimiser's
     moments and the step count start afresh. Its networks must match this run's (the observation
-    and action sizes, ppo.policy_hidden and the like): a ValueError names the mismatch; the one
+    and action sizes, ppo.policy_hidden and the like): a ValueError names the mismatch; the
     exceptions are a longer env.obs_history than the source's and a critic's ground scan added
     (env.critic_scan_points), which the networks read with zero weights (training/widen.py;
     "widened_from_obs_history", "widened_from_critic_scan_points" in the record). The source,

@@ -133,7 +133,8 @@ def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template):
     return serialization.from_state_dict(template, state)
 
 
-WIDENED_KEYS = ("obs_history", "critic_scan_points")  # the env configs a widening may change
+# the env config keys a widening may change, with the value a config without the key has
+WIDENED_KEYS = {"obs_history": 1, "critic_scan_points": 0}
 
 
 def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
@@ -148,11 +149,10 @@ def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
     from quadson_mjx.training.runs import load_run_config
 
     src_cfg, _ = load_run_config(source_run)
-    defaults = {"obs_history": 1, "critic_scan_points": 0}
     changed = {
-        k: src_cfg.get(k, defaults[k])
-        for k in WIDENED_KEYS
-        if src_cfg.get(k, defaults[k]) != env_cfg.get(k, defaults[k])
+        k: src_cfg.get(k, default)
+        for k, default in WIDENED_KEYS.items()
+        if src_cfg.get(k, default) != env_cfg.get(k, default)
     }
     if not changed:
         return load_checkpoint(ckpt, env.observation_size, env.action_size, ppo_cfg), {}
