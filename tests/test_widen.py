@@ -140,9 +140,18 @@ def test_a_critic_scan_added_starts_where_the_source_was(scanned):
     assert widened_from == {"critic_scan_points": 0}
     assert env.obs_spec == src_env.obs_spec
     assert env.critic_spec.size == src_env.critic_spec.size + 25
-    _same_outputs(src_env, env, ppo_cfg, source, params)
+    new_obs, _ = _same_outputs(src_env, env, ppo_cfg, source, params)
     scan = env.critic_spec.slices()["ground_scan"]
     assert not np.any(np.asarray(params[2]["params"]["hidden_0"]["kernel"])[scan])
+    # the scan reaches the value network once its weights move: not a dead input
+    nets = training.make_networks(env.observation_size, env.action_size, ppo_cfg)
+    moved = jax.tree.map(lambda x: x, params)
+    kernel = np.array(moved[2]["params"]["hidden_0"]["kernel"])
+    kernel[scan] = 0.1
+    moved[2]["params"]["hidden_0"]["kernel"] = kernel
+    v = nets.value_network.apply(params[0], params[2], new_obs)
+    v_moved = nets.value_network.apply(moved[0], moved[2], new_obs)
+    assert float(np.max(np.abs(np.asarray(v_moved) - np.asarray(v)))) > 1e-3
     # the scan's statistics by hand from the source's ground under the four feet (mean and std as
     # stored): their values pooled, so the variance is the mean of theirs plus their means' spread
     feet = src_env.critic_spec.slices()["ground_under_feet"]
