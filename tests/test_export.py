@@ -200,6 +200,10 @@ def test_every_committed_run_exports_and_the_deploy_loop_accepts_its_spec(run, t
             deploy.DeployLoop(policy)  # not a walking policy
         return
     loop = deploy.DeployLoop(policy)
+    if loop.needs_imu_calibration:  # trained for a calibrated IMU: calibrate standing level and still
+        from quadson_mjx.deploy_imu import calibrate_imu
+
+        loop.imu_calibration = calibrate_imu(np.tile([1.0, 0, 0, 0], (50, 1)), np.zeros((50, 3)))
     assert loop.config.obs_spec == spec and loop.config.robot.name == meta["env_config"]["robot"]
     assert meta["motors"] == list(loop.config.robot.motor_names)
     home = loop.config.robot.home_motor

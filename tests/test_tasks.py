@@ -155,6 +155,12 @@ COMMITTED_RUNS = {
         "QuadsonJoystickTiles",
         [*TILES_SWING, "gait_scale.cycle_s=0.6", "impl=warp"],
     ),
+    # and fine-tuned for a calibrated IMU with its robots starting at levels 6-9 (not kept; its
+    # checkpoint for finetune_rewards.py)
+    "results/tiles_swing_h200/comparison/tiles_min6_cal_h200": (
+        "QuadsonJoystickTiles",
+        [*TILES_SWING, "sensor.imu_tilt_rad=0.01", "tiles.min_init_level=6", "tiles.max_init_level=9"],
+    ),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
