@@ -8,7 +8,7 @@ policy's base-velocity input (quadson_mjx.policy_eval). Every policy sees the sa
 sweep of quadson-rollout, 75 commands, each `--replicas` times), seeds and randomized models, in
 each run's own env config; `--env.KEY=VALUE` changes the evaluation's conditions for all of them,
 and only those (quadson_mjx.cli.conditions: sensor model, noise, randomization, pushes, the MJX
-implementation), e.g. `--env.sensor.imu_tilt_rad=0.01` for a calibrated IMU.
+implementation, the physics timestep), e.g. `--env.sensor.imu_tilt_rad=0.01` for a calibrated IMU.
 """
 
 from __future__ import annotations

@@ -10,9 +10,9 @@ with 32 robots, 50 % is anything from 34 to 66 %); --json writes them with the c
 
 The trials run in the policy's own env config (its sensor errors, randomization and pushes);
 `--env.KEY=VALUE` changes the conditions of the evaluation, and only those (cli.conditions: the
-sensor model, noise, randomization ranges, pushes, the MJX implementation), e.g.
-`--env.sensor.imu_tilt_rad=0.01`: the robot's IMU calibrated on a level floor (deploy_imu) instead
-of mounted within 2 degrees. Keys that would change what the policy observes or does are refused.
+sensor model, noise, randomization ranges, pushes, the MJX implementation, the physics timestep),
+e.g. `--env.sensor.imu_tilt_rad=0.01`: the robot's IMU calibrated on a level floor (deploy_imu)
+instead of mounted within 2 degrees. Keys that would change what the policy observes or does are refused.
 """
 
 from __future__ import annotations
