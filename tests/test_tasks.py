@@ -130,6 +130,11 @@ COMMITTED_RUNS = {
     "results/policy_h200_sensors_c048": ("QuadsonJoystickRough", C048),
     # that run continued for 280M more steps with its configs (--init-from, 560M in all)
     "results/policy_h200_sensors_c048_560m": ("QuadsonJoystickRough", C048),
+    # and that fine-tuned for 60M steps at a 2 ms physics step on MJX's JAX implementation
+    "results/policy_h200_sensors_dt2": (
+        "QuadsonJoystickRough",
+        [*(k for k in C048 if k != "impl=warp"), "sim_dt=0.002"],
+    ),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
