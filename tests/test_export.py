@@ -254,6 +254,7 @@ def test_export_metadata_lists_what_the_robot_needs(run_dir, tmp_path):
 
 def test_model_identity_tells_the_models_apart():
     from quadson_mjx.robots import get_robot
+    from quadson_mjx.robots.quadson import constants as C
 
     flat = export_meta.model_identity(get_robot("quadson"), env_config())
     again = export_meta.model_identity(get_robot("quadson"), env_config())
@@ -262,8 +263,14 @@ def test_model_identity_tells_the_models_apart():
     cfg.unlock()
     cfg.cone = "elliptic"  # a physics option of the training model
     elliptic = export_meta.model_identity(get_robot("quadson"), cfg)
+    cfg = env_config()
+    cfg.unlock()
+    cfg.sim_dt = 0.002  # a physics step finer than the model's (the robot's 2 ms policies)
+    fine = export_meta.model_identity(get_robot("quadson"), cfg)
     assert flat == again
-    assert len({flat["mjcf_sha256"], rough["mjcf_sha256"], elliptic["mjcf_sha256"]}) == 3
+    assert flat["timestep_s"] == C.SIM_DT == 0.004 and fine["timestep_s"] == 0.002
+    hashes = {flat["mjcf_sha256"], rough["mjcf_sha256"], elliptic["mjcf_sha256"], fine["mjcf_sha256"]}
+    assert len(hashes) == 4
 
 
 def test_provenance_is_the_training_runs_not_the_exporting_machines(tmp_path):
