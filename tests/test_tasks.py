@@ -96,15 +96,15 @@ TILES_SWING = [
     "tiles.type_weights=slope_up:3,stairs_up:3,stairs_down:2",
     "gait_scale.step_height_m=1.4",
 ]
-# and fine-tuned from it for a calibrated IMU at a 2 ms physics step (results/tiles_dt2_h200)
-TILES_SWING_DT2 = [
+# and fine-tuned from it for a calibrated IMU with its robots starting at levels 6-9
+TILES_SWING_CAL6 = [
     *TILES_SWING,
     "sensor.imu_tilt_rad=0.01",
     "tiles.min_init_level=6",
     "tiles.max_init_level=9",
-    "sim_dt=0.002",
-    "critic_scan_points=9",
 ]
+# and that at a 2 ms physics step with the critic's ground scan (results/tiles_dt2_h200)
+TILES_SWING_DT2 = [*TILES_SWING_CAL6, "sim_dt=0.002", "critic_scan_points=9"]
 COMMITTED_RUNS = {
     # trained before the robust recipe observed the robot's sensors: its true_state twin
     "results/policy_h100_joystick": ("QuadsonJoystickTrueStateRough", []),
@@ -171,10 +171,7 @@ COMMITTED_RUNS = {
     ),
     # and fine-tuned for a calibrated IMU with its robots starting at levels 6-9 (not kept; its
     # checkpoint for finetune_rewards.py)
-    "results/tiles_swing_h200/comparison/tiles_min6_cal_h200": (
-        "QuadsonJoystickTiles",
-        [*TILES_SWING, "sensor.imu_tilt_rad=0.01", "tiles.min_init_level=6", "tiles.max_init_level=9"],
-    ),
+    "results/tiles_swing_h200/comparison/tiles_min6_cal_h200": ("QuadsonJoystickTiles", TILES_SWING_CAL6),
     # and the same at a 2 ms physics step, with the critic's 9 x 9 ground scan and a quarter of the
     # learning rate: the tiles policy trained at 2 ms
     "results/tiles_dt2_h200": ("QuadsonJoystickTiles", TILES_SWING_DT2),
