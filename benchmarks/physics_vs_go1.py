@@ -6,7 +6,8 @@
 The anchor is Playground's `go1_mjx_feetonly.xml` flat scene (not part of this project: pass the path
 of a checkout's `mujoco_playground/_src/locomotion/go1/xmls/scene_mjx_feetonly_flat_terrain.xml`;
 its visual meshes, contype 0 and massless, are dropped so no mesh files are needed). Both robots run
-the same protocol: N worlds, 5 physics steps of 4 ms per 0.02 s control step, position targets =
+the same protocol: N worlds, 0.02 s control steps (5 physics steps of 4 ms; 10 of 2 ms in the
+settings and Go1 rows of a 2 ms timestep, --go1-timesteps), position targets =
 home + N(0, 0.1 rad) drawn every control step; one jitted lax.scan over --steps control steps,
 compiled once, best of --repeats timed runs.
 
@@ -61,6 +62,16 @@ SETTINGS: dict[str, dict] = {
         "joint_limits": False,
         "solver": "cg",
         "jacobian": "sparse",
+    },
+    # the training physics at the 2 ms step of the robot's policies (10 physics steps per control step)
+    "feet_only_nolimit_dt2": {"base_terrain_contact": False, "joint_limits": False, "sim_dt": 0.002},
+    # the same on the stone field (its height field in the model; every world starts at home)
+    "rough_feet_only_nolimit": {"terrain": "rough", "base_terrain_contact": False, "joint_limits": False},
+    "rough_feet_only_nolimit_dt2": {
+        "terrain": "rough",
+        "base_terrain_contact": False,
+        "joint_limits": False,
+        "sim_dt": 0.002,
     },
 }
 
@@ -241,6 +252,13 @@ def main(argv=None):
         choices=GO1_SENSORS,
         help="Go1 rows: sensors read every control step, computed but unread (dropped by XLA), or off",
     )
+    p.add_argument(
+        "--go1-timesteps",
+        type=float,
+        nargs="+",
+        default=[0.0],
+        help="Go1's physics timesteps [s] (0: its scene's 4 ms); the first is the anchor of 'vs Go1'",
+    )
     p.add_argument("--envs", type=int, nargs="+", default=[8192, 32768])
     p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
     p.add_argument("--repeats", type=int, default=2)
@@ -271,18 +289,22 @@ def main(argv=None):
     if args.go1_scene:
         go1 = load_go1(args.go1_scene)
         key = mujoco.mj_name2id(go1, mujoco.mjtObj.mjOBJ_KEY, "home")
-        for sensors, impl in ((s, i) for s in args.go1_sensors for i in args.impls):
+        for sensors, impl, dt in (
+            (s, i, t) for t in args.go1_timesteps for s in args.go1_sensors for i in args.impls
+        ):
             m = load_go1(args.go1_scene)
             if sensors == "off":
                 m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+            if dt > 0.0:
+                m.opt.timestep = dt
+            setting = f"sensors_{sensors}" + ("" if dt == args.go1_timesteps[0] else f"_dt{dt:g}")
             for n in args.envs:
                 out = physics_only(
                     m, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats, sensors == "read",
                     impl=impl, **_warp_sizes(m, impl),
                 )  # fmt: skip
-                record(
-                    {"robot": "go1_feetonly", "setting": f"sensors_{sensors}", "impl": impl, "envs": n, **out}
-                )
+                row = {"robot": "go1_feetonly", "setting": setting, "impl": impl, "envs": n}
+                record({**row, "timestep_s": float(m.opt.timestep), **out})
     for robot, name, fivebar, impl in (
         (r, s, f, i)
         for r in args.robots
@@ -309,6 +331,7 @@ def main(argv=None):
                 "setting": setting,
                 "impl": impl,
                 "envs": n,
+                "timestep_s": float(m.opt.timestep),
                 "nv": m.nv,
                 "nefc": int(dx._impl.efc_J.shape[0]),
             }
@@ -326,19 +349,21 @@ def main(argv=None):
         and r["setting"] == f"sensors_{args.go1_sensors[0]}"
         and r.get("impl", "jax") == "jax"
     }
-    print(f"\ndevice: {meta['device']}; {args.steps} control steps of 0.02 s (5 physics steps each)")
+    print(
+        f"\ndevice: {meta['device']}; {args.steps} control steps of 0.02 s (0.02 s / timestep physics steps each)"
+    )
     print(f"vs Go1: against Go1 with sensors {args.go1_sensors[0]} on MJX's JAX implementation")
     print(
-        "| robot | setting | impl | envs | nv | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
+        "| robot | setting | impl | timestep | envs | nv | constraint rows | physics (ctrl steps/s) | vs Go1 | env (steps/s) | closure max | fell |"
     )
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         ratio = f"{r['physics_steps_per_s'] / anchor[r['envs']]:.2f}x" if r["envs"] in anchor else "-"
         env_sps = f"{r['env_steps_per_s']:,.0f}" if "env_steps_per_s" in r else "-"
         res = f"{1e3 * r['closure_residual_max_m']:.2f} mm" if "closure_residual_max_m" in r else "-"
         fell = f"{100 * r['fell_frac']:.1f} %" if "fell_frac" in r else "-"
         print(
-            f"| {r['robot']} | {r['setting']} | {r.get('impl', 'jax')} | {r['envs']} | {r.get('nv', '-')} | {r.get('nefc', '-')} | "
+            f"| {r['robot']} | {r['setting']} | {r.get('impl', 'jax')} | {1e3 * r.get('timestep_s', 0.004):g} ms | {r['envs']} | {r.get('nv', '-')} | {r.get('nefc', '-')} | "
             f"{r['physics_steps_per_s']:,.0f} | {ratio} | {env_sps} | {res} | {fell} |"
         )
 
