@@ -23,6 +23,10 @@ markdown table; the JSON is rewritten after every measurement.
 --impls jax warp measures every row (Go1's too) on both of MJX's implementations; "vs Go1" is
 against Go1 on the JAX implementation (the anchor of every earlier run).
 
+The setting rough_feet_only_nolimit_1contact collides each foot with the stone field's height field
+into one contact (the deepest) instead of MJX's up to four (env.hfield_foot_contacts=1; JAX only):
+what the extra contacts cost.
+
 --fivebar-models full light measures each setting on both of Quadson's leg models (env.fivebar_model;
 the light one's rows are named SETTING+light); robots without that model (Caramel) are skipped for it.
 """
@@ -40,7 +44,7 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-from quadson_mjx import env_model, warp_build
+from quadson_mjx import env_model, hfield_contact, warp_build
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.robots import ROBOT_NAMES, get_robot
@@ -72,6 +76,13 @@ SETTINGS: dict[str, dict] = {
         "base_terrain_contact": False,
         "joint_limits": False,
         "sim_dt": 0.002,
+    },
+    # the stone field with one contact per foot instead of MJX's up to four
+    "rough_feet_only_nolimit_1contact": {
+        "terrain": "rough",
+        "base_terrain_contact": False,
+        "joint_limits": False,
+        "hfield_foot_contacts": 1,
     },
 }
 
@@ -314,33 +325,37 @@ def main(argv=None):
     ):
         if fivebar not in get_robot(robot).model_variants:
             continue
+        if SETTINGS[name].get("hfield_foot_contacts", 4) != 4 and impl != "jax":
+            continue
         cfg = env_config(robot=robot)
         for key, value in {**SETTINGS[name], "fivebar_model": fivebar, "impl": impl}.items():
             cfg[key] = value
         cfg.warp_max_worlds = max(args.envs)
-        env = LocomotionEnv(cfg)
-        m = env.mj_model
-        if env.warp_buffers is not None:
-            warp_build.start(m, env.warp_buffers).wait()
-        home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
-        dx = mjx.make_data(m)
-        setting = name if fivebar == "full" else f"{name}+{fivebar}"
-        for n in args.envs:
-            row = {
-                "robot": robot,
-                "setting": setting,
-                "impl": impl,
-                "envs": n,
-                "timestep_s": float(m.opt.timestep),
-                "nv": m.nv,
-                "nefc": int(dx._impl.efc_J.shape[0]),
-            }
-            row.update(
-                physics_only(m, m.key_qpos[home], m.key_ctrl[home], n, args.steps, args.repeats, impl=impl,
-                             **_warp_sizes(m, impl))
-            )  # fmt: skip
-            row.update(env_under_gait(env, n, args.steps, args.repeats))
-            record(row)
+        # the env makes its data and steps under its own setting; bare physics under the same
+        with hfield_contact.sphere_contacts(cfg.hfield_foot_contacts):
+            env = LocomotionEnv(cfg)
+            m = env.mj_model
+            if env.warp_buffers is not None:
+                warp_build.start(m, env.warp_buffers).wait()
+            home = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, env.robot.home_keyframe)
+            dx = mjx.make_data(m)
+            setting = name if fivebar == "full" else f"{name}+{fivebar}"
+            for n in args.envs:
+                row = {
+                    "robot": robot,
+                    "setting": setting,
+                    "impl": impl,
+                    "envs": n,
+                    "timestep_s": float(m.opt.timestep),
+                    "nv": m.nv,
+                    "nefc": int(dx._impl.efc_J.shape[0]),
+                }
+                row.update(
+                    physics_only(m, m.key_qpos[home], m.key_ctrl[home], n, args.steps, args.repeats, impl=impl,
+                                 **_warp_sizes(m, impl))
+                )  # fmt: skip
+                row.update(env_under_gait(env, n, args.steps, args.repeats))
+                record(row)
 
     anchor = {
         r["envs"]: r["physics_steps_per_s"]

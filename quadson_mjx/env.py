@@ -31,7 +31,7 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
-from quadson_mjx import commands, gait, obs_spec, rewards, sensors, terrain, terrain_tiles
+from quadson_mjx import commands, gait, hfield_contact, obs_spec, rewards, sensors, terrain, terrain_tiles
 from quadson_mjx.config import freeze
 from quadson_mjx.env_config import check_env_config, env_config, env_gait, with_added_keys
 from quadson_mjx.env_model import (
@@ -365,7 +365,8 @@ class LocomotionEnv(Env):
         return state
 
     def _start(self, qpos, k_info) -> State:
-        data = make_env_data(self._mj_model, self.sys, self._warp_buffers)
+        with hfield_contact.sphere_contacts(self._config.hfield_foot_contacts):
+            data = make_env_data(self._mj_model, self.sys, self._warp_buffers)
         data = data.replace(qpos=qpos, qvel=jnp.zeros(self.sys.nv), ctrl=self._home_ctrl)
         # Positions only (body, geom and site frames): a step recomputes everything else from qpos,
         # qvel and ctrl, so its result is the same as after a full mjx.forward (tested bit for bit),
@@ -527,7 +528,8 @@ class LocomotionEnv(Env):
             return (data, sensed), None
 
         sensed = (data.qpos, data.qvel) if read_sensors else None
-        (data, sensed), _ = jax.lax.scan(substep, (data, sensed), jnp.arange(self._n_substeps))
+        with hfield_contact.sphere_contacts(self._config.hfield_foot_contacts):  # traced inside
+            (data, sensed), _ = jax.lax.scan(substep, (data, sensed), jnp.arange(self._n_substeps))
         return data, sensed
 
     def foot_contact(self, data) -> jax.Array:

@@ -28,6 +28,7 @@ from quadson_mjx.env_recipes import (
 from quadson_mjx.gait import GaitParams
 from quadson_mjx.getup_config import EPISODE_S as GETUP_EPISODE_S
 from quadson_mjx.getup_config import GETUP, GETUP_RULES, TOPPLE_PROB, check_getup_config
+from quadson_mjx.hfield_contact import CHOICES as HFIELD_FOOT_CONTACTS
 from quadson_mjx.robots import ROBOT_NAMES, TERRAINS, get_robot
 from quadson_mjx.terrain_tiles import TILES, tile_spec
 
@@ -76,6 +77,7 @@ ENV_KEYS_ADDED = {
     "critic_scan_points": 0,
     "critic_scan_spacing_m": 0.05,
     "fivebar_model": "full",
+    "hfield_foot_contacts": 4,
     **{f"tiles.{k}": v for k, v in TILES.items()},
     "task": "locomotion",
     **{f"getup.{k}": v for k, v in GETUP.items() if k != "weights"},
@@ -206,6 +208,11 @@ def env_config(
             # passive link 4 is a fixed-length tendon (4 DoFs and 1 equality row per leg instead of
             # 5 and 3; docs/physics.md, benchmarks/fivebar_light_vs_full.py).
             "fivebar_model": "full",
+            # Contacts per foot sphere on a height field (the stone field, the tiles; a plane makes
+            # one): 4, MJX's own collider (up to four points of the grid cells under the foot), or
+            # 1, the deepest of them (quadson_mjx.hfield_contact; 1.23x the stone field's physics
+            # on one H200 at 32768 worlds). MJX's JAX implementation and the walking tasks only.
+            "hfield_foot_contacts": 4,
             # 50 Hz control: the control rate of seed 003's gait planner and of MJX locomotion
             # benchmarks; the seed's 240 Hz with one action per physics step would make PPO's
             # horizon 5x longer for no gain in what a position servo can follow.
@@ -364,6 +371,7 @@ ENV_RULES: dict[str, Rule] = {
     "impl": Rule("name"),
     "warp_max_worlds": Rule("int", 1, 1 << 20, "worlds"),
     "fivebar_model": Rule("name"),
+    "hfield_foot_contacts": Rule("int", 1, 4, "contacts"),  # and one of hfield_contact.CHOICES
     "ctrl_dt": Rule("number", 0.0, 1.0, _S, lo_open=True),  # and a multiple of the model timestep
     "sim_dt": Rule("number", 0.0, 0.02, _S),  # 0: the model's; ctrl_dt a multiple of it
     "episode_length_s": Rule("number", 0.0, 3600.0, _S, lo_open=True),  # and >= ctrl_dt
@@ -474,6 +482,16 @@ def check_env_config(cfg) -> None:
     fivebar = cfg.get("fivebar_model", "full")
     if fivebar not in spec.model_variants:
         raise ValueError(f"env.fivebar_model is {fivebar!r}; {robot} has {list(spec.model_variants)}")
+    contacts = cfg.get("hfield_foot_contacts", 4)
+    if contacts not in HFIELD_FOOT_CONTACTS:
+        raise ValueError(
+            f"env.hfield_foot_contacts is {contacts!r}; choose from {list(HFIELD_FOOT_CONTACTS)}"
+        )
+    if contacts != 4 and (cfg.impl != "jax" or cfg.get("task", "locomotion") != "locomotion"):
+        raise ValueError(
+            "env.hfield_foot_contacts=1 needs env.impl=jax and the locomotion task (it replaces a "
+            "collider of MJX's JAX implementation for the feet alone)"
+        )
     if cfg.gait_action and not spec.gait_action:
         raise ValueError(f"env.gait_action: {robot}'s gait cannot be scaled by the policy")
     for key, names in (
