@@ -55,6 +55,8 @@ def test_fed_velocity_refuses_a_sensor_policy():
         ["--policy", "results/policy_h100_sensors", "--env.sensor.imu_tilt_rad=nan"],
         ["--policy", "results/policy_h100_sensors", "--imu_tilt_rad=0.01"],
         ["--policy", "results/policy_h100_sensors", "--env.sim_dt=0.003"],  # ctrl_dt 0.02 not a multiple
+        ["--policy", "results/policy_h100_sensors", "--env.hfield_foot_contacts=2"],  # 4 or 1
+        ["--policy", "results/policy_h100_sensors", "--env.hfield_foot_contacts=1", "--env.impl=warp"],
     ],
 )
 def test_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):

@@ -1,6 +1,7 @@
 """An evaluation's conditions on the command line: `--env.KEY=VALUE` for the keys of the env config
 that set the world a trained policy is evaluated in (CONDITION_KEYS: the sensor model, noise, the
-randomization ranges, pushes, the MJX implementation, the physics timestep), never what the policy
+randomization ranges, pushes, the MJX implementation, the physics timestep, the feet's contacts on a
+height field), never what the policy
 observes or does (the policy still acts every ctrl_dt).
 Used by quadson-tiles-eval and quadson-policy-eval, e.g. `--env.sensor.imu_tilt_rad=0.01`: the
 IMU's mounting as a calibrated robot keeps it (deploy_imu) instead of within 2 degrees."""
@@ -10,7 +11,17 @@ from __future__ import annotations
 from quadson_mjx.errors import UsageError
 
 # the env config keys (and key prefixes) that set an evaluation's conditions, not the policy's task
-CONDITION_KEYS = ("sensor.", "noise.", "randomization.", "randomize", "push.", "pushes", "impl", "sim_dt")
+CONDITION_KEYS = (
+    "sensor.",
+    "noise.",
+    "randomization.",
+    "randomize",
+    "push.",
+    "pushes",
+    "impl",
+    "sim_dt",
+    "hfield_foot_contacts",
+)
 
 
 def condition_overrides(rest: list[str]) -> list[str]:
