@@ -80,14 +80,15 @@ def test_getup_task_refuses_it():
 
 def _poses_over_stones(env, n: int, seed: int = 0) -> np.ndarray:
     """n home poses over random points of the stone field away from its flat patch, each lowered
-    so that its lowest foot is 2 mm into the ground under it (MuJoCo C's mj_forward decides)."""
+    so that its lowest foot sphere reaches 2 mm below the ground height under its centre (the
+    env's height query; on a sloped cell the contact itself is for MuJoCo C to find)."""
     m = env.mj_model
     d = mujoco.MjData(m)
     rng = np.random.default_rng(seed)
     feet = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in env.robot.foot_geoms()]
     poses = []
     while len(poses) < n:
-        q = env._home_qpos.__array__().astype(np.float64).copy()
+        q = np.array(env._home_qpos, np.float64)
         q[:2] = rng.uniform(0.6, 2.5, 2) * rng.choice([-1, 1], 2)
         d.qpos[:] = q
         mujoco.mj_kinematics(m, d)
