@@ -24,8 +24,8 @@ markdown table; the JSON is rewritten after every measurement.
 against Go1 on the JAX implementation (the anchor of every earlier run).
 
 The setting rough_feet_only_nolimit_1contact collides each foot with the stone field's height field
-into one contact (the deepest) instead of MJX's up to four (env.hfield_foot_contacts=1; JAX only):
-what the extra contacts cost.
+into one contact (the surface's nearest point) instead of MJX's up to four (env.hfield_foot_contacts=1;
+JAX only): what MJX's prism tests and the extra contacts cost.
 
 --fivebar-models full light measures each setting on both of Quadson's leg models (env.fivebar_model;
 the light one's rows are named SETTING+light); robots without that model (Caramel) are skipped for it.

@@ -210,8 +210,9 @@ def env_config(
             "fivebar_model": "full",
             # Contacts per foot sphere on a height field (the stone field, the tiles; a plane makes
             # one): 4, MJX's own collider (up to four points of the grid cells under the foot), or
-            # 1, the deepest of them (quadson_mjx.hfield_contact; 1.23x the stone field's physics
-            # on one H200 at 32768 worlds). MJX's JAX implementation and the walking tasks only.
+            # 1, the surface's nearest point, MuJoCo C's deepest contact (quadson_mjx.hfield_contact;
+            # 1.43x the stone field's physics on one H200 at 32768 worlds, the tiles' environment
+            # 1.68x). MJX's JAX implementation and the walking tasks only.
             "hfield_foot_contacts": 4,
             # 50 Hz control: the control rate of seed 003's gait planner and of MJX locomotion
             # benchmarks; the seed's 240 Hz with one action per physics step would make PPO's
