@@ -18,6 +18,9 @@ Go1 row (--go1-scene, see physics_vs_go1.py) is bare physics, the anchor of the 
 Playground's feet-only Go1 on its rough height field (the scene beside it) is the field's own
 measure of what a height field costs.
 
+--hfield-foot-contacts 4 1 repeats the stone field's and the tiles' rows with one contact a foot
+(env.hfield_foot_contacts=1, quadson_mjx/hfield_contact.py) beside MJX's own collider.
+
 --breakdown adds what the tiled ground's cost is made of, in the same run: bare physics (no
 environment, noisy position targets around the home pose, every world at the field's centre) on the
 plane, the stone field and the tiles on 2 cm and 4 cm cells; the environment on 4 cm cells
@@ -57,8 +60,9 @@ class RestartAtFirstState(ResamplingAutoReset):
         return state.replace(pipeline_state=pipeline_state, obs=obs)
 
 
-def wrapped(terrain: str, n_envs: int, cell_m: float | None = None, respawn: bool = True):
+def wrapped(terrain: str, n_envs: int, cell_m: float | None = None, respawn: bool = True, contacts: int = 4):
     cfg = config_from_flags(env_preset="robust", terrain=terrain).unlock()
+    cfg.hfield_foot_contacts = contacts
     if terrain == "tiles":
         cfg.tiles.curriculum = False  # keep each row's mix of levels as drawn
         if cell_m is not None:
@@ -117,6 +121,10 @@ def timed_rollout(run, state, n_envs: int, steps: int, repeats: int) -> dict:
     }
 
 
+def _contacts_label(contacts: int) -> str:
+    return "" if contacts == 4 else f", {contacts} contact{'s' if contacts > 1 else ''} a foot"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--envs", type=int, nargs="+", default=[8192])
@@ -124,6 +132,13 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--go1-scene", default=None)
     p.add_argument("--breakdown", action="store_true", help="add the rows that split the tiles' cost")
+    p.add_argument(
+        "--hfield-foot-contacts",
+        type=int,
+        nargs="+",
+        default=[4],
+        help="the stones' and tiles' rows under each env.hfield_foot_contacts (4: MJX's collider, 1: one contact a foot)",
+    )
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     meta = run_meta(args)
@@ -139,26 +154,30 @@ def main(argv=None) -> int:
             rough = load_go1(str(Path(args.go1_scene).with_name("scene_mjx_feetonly_rough_terrain.xml")))
             record({"robot": "go1_feetonly", "ground": "rough height field (physics only)", "envs": n,
                     **physics_only(rough, go1.key_qpos[key], go1.key_ctrl[key], n, args.steps, args.repeats)})  # fmt: skip
-        for terrain, ground in (("flat", "flat"), ("rough", "stones field")):
-            env, w = wrapped(terrain, n)
+        for terrain, ground, contacts in (
+            ("flat", "flat", 4),
+            *(("rough", "stones field" + _contacts_label(c), c) for c in args.hfield_foot_contacts),
+        ):
+            env, w = wrapped(terrain, n, contacts=contacts)
             state = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(0), n))
             run = rollout_fn(env, w, n, args.steps)
-            record({"robot": "quadson", "ground": ground, "envs": n,
+            record({"robot": "quadson", "ground": ground, "envs": n, "hfield_foot_contacts": contacts,
                     **timed_rollout(run, state, n, args.steps, args.repeats)})  # fmt: skip
-        env, w = wrapped("tiles", n)
-        run = rollout_fn(env, w, n, args.steps)  # compiled once for every row of the tiled ground
-        spec = env.tiles
-        reset_on = jax.jit(w.reset_on_tiles)
-        keys = jax.random.split(jax.random.PRNGKey(0), n)
-        levels = jax.random.randint(jax.random.PRNGKey(5), (n,), 0, spec.levels)
-        mixed = jax.random.randint(jax.random.PRNGKey(6), (n,), 0, len(spec.types))
-        for ground, types in (
-            ("tiles: all types", mixed),
-            *((f"tiles: {t}", i) for i, t in enumerate(spec.types)),
-        ):
-            state = reset_on(keys, types, levels)
-            record({"robot": "quadson", "ground": ground, "envs": n,
-                    **timed_rollout(run, state, n, args.steps, args.repeats)})  # fmt: skip
+        for contacts in args.hfield_foot_contacts:
+            env, w = wrapped("tiles", n, contacts=contacts)
+            run = rollout_fn(env, w, n, args.steps)  # compiled once for every row of the tiled ground
+            spec = env.tiles
+            reset_on = jax.jit(w.reset_on_tiles)
+            keys = jax.random.split(jax.random.PRNGKey(0), n)
+            levels = jax.random.randint(jax.random.PRNGKey(5), (n,), 0, spec.levels)
+            mixed = jax.random.randint(jax.random.PRNGKey(6), (n,), 0, len(spec.types))
+            for ground, types in (
+                ("tiles: all types", mixed),
+                *((f"tiles: {t}", i) for i, t in enumerate(spec.types)),
+            ):
+                state = reset_on(keys, types, levels)
+                record({"robot": "quadson", "ground": ground + _contacts_label(contacts), "envs": n,
+                        "hfield_foot_contacts": contacts, **timed_rollout(run, state, n, args.steps, args.repeats)})  # fmt: skip
         if args.breakdown:
             for name, kw in (
                 ("tiles: all types, 4 cm cells", {"cell_m": 0.04}),
