@@ -180,6 +180,8 @@ COMMITTED_RUNS = {
         "QuadsonJoystickTiles",
         [*TILES_SWING_DT2, "reward.tracking_sigma=0.1"],
     ),
+    # and that fine-tuned with one contact a foot on the height field (hfield_contact)
+    "results/tiles_dt2_hfc1_h200": ("QuadsonJoystickTiles", [*TILES_SWING_DT2, "hfield_foot_contacts=1"]),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
