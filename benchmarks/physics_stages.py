@@ -9,7 +9,8 @@ FAST_PHYSICS: feet-only contact, no joint-limit rows, sensors off), plus --varia
 solver settings, and with --terrains Quadson's training model on the stone field ("rough") and
 the tiled ground ("tiles"), where the feet meet MJX's height-field collider instead of a plane
 (each foot sphere against the field's prisms under it, up to 4 contacts a foot: the rows "hfield
-prisms per foot" and ncon / nefc say how many). For each model: N worlds are stepped 50 control steps from home with noisy
+prisms per foot" and ncon / nefc say how many; the walking tasks on rough ground now make one
+contact a foot instead, env.hfield_foot_contacts=1, which this script leaves out). For each model: N worlds are stepped 50 control steps from home with noisy
 position targets (as `physics_vs_go1.py`; on a height field from where the env's reset puts the robot
 on the ground), so contacts and the closure are active; then every
 stage of MJX's step (the functions `mjx.step` calls, in its order) is timed alone on that batch:

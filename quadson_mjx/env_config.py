@@ -491,7 +491,8 @@ def check_env_config(cfg) -> None:
     if contacts != 4 and (cfg.impl != "jax" or cfg.get("task", "locomotion") != "locomotion"):
         raise ValueError(
             "env.hfield_foot_contacts=1 needs env.impl=jax and the locomotion task (it replaces a "
-            "collider of MJX's JAX implementation for the feet alone)"
+            "collider of MJX's JAX implementation for the feet alone; the walking tasks on rough "
+            "ground set it): add env.hfield_foot_contacts=4"
         )
     if cfg.gait_action and not spec.gait_action:
         raise ValueError(f"env.gait_action: {robot}'s gait cannot be scaled by the policy")

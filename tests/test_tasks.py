@@ -46,9 +46,15 @@ OLD_ENV_PRESETS["robust"] = {
 OLD_ENV_PRESETS["getup"] = {"joint_limits": False, "randomize": True, "task": "getup"}
 
 
+# since then: the walking presets on rough ground make one contact a foot on the height field
+NEW_HFIELD_CONTACTS = {"hfield_foot_contacts": 1}
+
+
 def old_script_config(robot, env_preset, terrain, gait, gait_action):
     recipe = {"gait": gait, "gait_recipe": True} if gait else {}
     env_cfg = env_config(terrain=terrain, robot=robot, **OLD_ENV_PRESETS[env_preset], **recipe)
+    if terrain != "flat" and env_preset != "getup":
+        env_cfg.update(NEW_HFIELD_CONTACTS)
     env_cfg.gait_action = gait_action
     return env_cfg
 
@@ -271,6 +277,14 @@ COMMITTED_RUNS = {
     "results/policy_h200_seed": ("QuadsonFlat", ["base_terrain_contact=true", "joint_limits=true"]),
 }
 
+# Every committed run on rough ground but those that say otherwise trained with MJX's own
+# height-field collider (4 contacts a foot): they predate the walking presets' one contact.
+for _run, (_task, _over) in COMMITTED_RUNS.items():
+    if tasks.make_task_config(_task).hfield_foot_contacts == 1 and not any(
+        o.startswith("hfield_foot_contacts=") for o in _over
+    ):
+        COMMITTED_RUNS[_run] = (_task, [*_over, "hfield_foot_contacts=4"])
+
 
 def test_registry_names():
     assert tasks.task_names() == NAMES
@@ -286,6 +300,8 @@ def test_every_task_is_a_locked_valid_config(name):
     # for get-up, whose robot lands on its back and sides
     assert cfg.joint_limits is False
     assert cfg.base_terrain_contact is ("Getup" in name)
+    # one contact a foot on a height field, for the walking tasks (the get-up robot lands on all of it)
+    assert cfg.hfield_foot_contacts == (1 if cfg.terrain != "flat" and "Getup" not in name else 4)
     assert cfg.robot == name[:7].lower()
     assert cfg.terrain in name.lower() or "Gait" in name
     with pytest.raises(AttributeError):

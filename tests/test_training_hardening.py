@@ -217,6 +217,24 @@ def test_regression_warp_getup_on_the_stones_is_one_line(run_main, tmp_path):
     assert line.endswith("use env.impl=jax") and not (tmp_path / "R").exists()
 
 
+def test_warp_on_a_rough_walking_task_asks_for_mjx_collider_in_one_line(run_main, tmp_path):
+    """The walking tasks on rough ground collide the feet with MJX's JAX implementation's one-contact
+    collider (env.hfield_foot_contacts=1), which Warp does not have: refused in one line that says
+    what to add, before a run directory is made."""
+    status, err = run_main(
+        "--preset",
+        "test",
+        "--run-dir",
+        str(tmp_path / "R"),
+        "--task",
+        "QuadsonJoystickRough",
+        "--env.impl=warp",
+    )
+    line = _one_line(err)
+    assert status == 2 and "env.hfield_foot_contacts=1 needs env.impl=jax" in line
+    assert line.endswith("add env.hfield_foot_contacts=4") and not (tmp_path / "R").exists()
+
+
 def test_regression_read_only_run_dir_and_compile_cache_are_one_line(run_main, tmp_path, monkeypatch):
     # As root, chmod does not stop writes: a path below a regular file (ENOTDIR) stands for a
     # place that cannot be written, and os.access answering no for a read-only folder.
