@@ -79,7 +79,8 @@ def config_from_flags(
     gait_action: bool = False,
 ) -> ml_collections.ConfigDict:
     """The env config of the training script's flags (--robot, --env-preset, --terrain, --gait,
-    --gait-action), locked and checked (env_config.check_env_config). `gait` trains that gait with
+    --gait-action), locked and checked (env_config.check_env_config); off the plane the walking
+    presets add HFIELD_PHYSICS. `gait` trains that gait with
     its recipe (env_recipes.GAIT_RECIPES). Raises ValueError for an unknown preset, terrain, robot or
     gait, a gait without a recipe, or gait_action for a robot whose gait cannot be scaled."""
     if env_preset not in ENV_PRESETS:
