@@ -34,6 +34,8 @@ from mujoco.mjx._src import collision_convex, collision_driver
 from mujoco.mjx._src import math as mjx_math
 from mujoco.mjx._src.types import GeomType
 
+from quadson_mjx.terrain import cell_height
+
 # The values of env.hfield_foot_contacts: MJX's own collider, and one contact on the surface.
 CHOICES = (4, 1)
 _PAIR = (GeomType.HFIELD, GeomType.SPHERE)
@@ -103,10 +105,7 @@ def nearest_on_surface(h, s, subgrid_size):
     rc = jnp.clip(jnp.floor((c[1] + h.size[1]) / dy), 0, h.nrow - 2).astype(int)
     u = (c[0] + h.size[0]) / dx - cc
     v = (c[1] + h.size[1]) / dy - rc
-    z00, z10 = h.data[cc, rc], h.data[cc + 1, rc]
-    z01, z11 = h.data[cc, rc + 1], h.data[cc + 1, rc + 1]
-    # the cell's diagonal runs from (0, 0) to (1, 1): above it (v > u) the triangle p00, p11, p01
-    z = jnp.where(v > u, z00 + u * (z11 - z01) + v * (z01 - z00), z00 + u * (z10 - z00) + v * (z11 - z10))
+    z = cell_height(h.data[cc, rc], h.data[cc + 1, rc], h.data[cc, rc + 1], h.data[cc + 1, rc + 1], u, v)
     sign = jnp.where(c[2] >= z * h.size[2], 1.0, -1.0)
     # the normal from the surface to the sphere; straight up the triangle's face where the centre
     # lies on the surface itself

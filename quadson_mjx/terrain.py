@@ -66,13 +66,17 @@ def ground_height(field: Heightfield | None, xy: jnp.ndarray) -> jnp.ndarray:
     v = jnp.clip(v, 0.0, nrow - 1.0)
     c = jnp.clip(jnp.floor(u).astype(jnp.int32), 0, ncol - 2)
     r = jnp.clip(jnp.floor(v).astype(jnp.int32), 0, nrow - 2)
-    fu, fv = u - c, v - r
     h = field.heights
-    h00, h10 = h[r, c], h[r, c + 1]
-    h01, h11 = h[r + 1, c], h[r + 1, c + 1]
+    return field.origin[2] + cell_height(h[r, c], h[r, c + 1], h[r + 1, c], h[r + 1, c + 1], u - c, v - r)
+
+
+def cell_height(h00, h10, h01, h11, fu, fv):
+    """The surface's height at (fu, fv) in [0, 1]^2 of the cell whose corners (c, r), (c + 1, r),
+    (c, r + 1), (c + 1, r + 1) are at h00, h10, h01, h11: on MuJoCo's two triangles, split along
+    the diagonal from (c, r) to (c + 1, r + 1)."""
     lower = h00 + fu * (h10 - h00) + fv * (h11 - h10)  # triangle (c,r) (c+1,r) (c+1,r+1): fu >= fv
     upper = h00 + fv * (h01 - h00) + fu * (h11 - h01)  # triangle (c,r) (c+1,r+1) (c,r+1): fv > fu
-    return field.origin[2] + jnp.where(fu >= fv, lower, upper)
+    return jnp.where(fu >= fv, lower, upper)
 
 
 def on_field(field: Heightfield | None, xy: jnp.ndarray, margin_m: float = 0.0) -> jnp.ndarray:
