@@ -95,6 +95,8 @@ C048 = [
     "impl=warp",
     "gait_scale.cycle_s=0.6",
 ]
+# the same on MJX's JAX implementation with the walking presets' one contact a foot on the height field
+C048_HFC1 = [*(k for k in C048 if k != "impl=warp"), "hfield_foot_contacts=1"]
 # the tiles policy's fine-tunes up to the 7 cm step height (results/tiles_swing_h200)
 TILES_SWING = [
     "reward.tracking_sigma=0.15",
@@ -150,6 +152,10 @@ COMMITTED_RUNS = {
         "QuadsonJoystickRough",
         [*(k for k in C048 if k != "impl=warp"), "sim_dt=0.002"],
     ),
+    # the 0.48 s trot recipe on JAX with one contact a foot, 16384 robots and a 10-step unroll
+    "results/policy_h200_sensors_e16u10": ("QuadsonJoystickRough", C048_HFC1),
+    # and that fine-tuned for 80M steps at a 2 ms physics step
+    "results/policy_h200_sensors_e16u10_dt2": ("QuadsonJoystickRough", [*C048_HFC1, "sim_dt=0.002"]),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
