@@ -546,6 +546,10 @@ def test_script_resume_of_a_damaged_config_exits_2_naming_the_file_regression(tm
 
 def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):
     # A scheduler's SIGTERM must leave what Ctrl-C leaves: a closed log and a resumable checkpoint.
+    # It is sent as GNU timeout sends it, to the process and then to its process group: one request,
+    # so the run stops at its next safe point, not at once. (The two often reach the process as one;
+    # test_the_same_signal_twice_at_once_is_one_request covers the case where they do not.)
+    import os
     import signal
     import time
 
@@ -556,15 +560,19 @@ def test_sigterm_ends_the_script_like_ctrl_c(tmp_path):
         stderr=subprocess.STDOUT,
         text=True,
         env=_script_env(),
+        start_new_session=True,  # its own process group, as under timeout
     )
     deadline = time.monotonic() + 300
     while not (run / "checkpoints" / "latest").exists():
         assert proc.poll() is None and time.monotonic() < deadline, "no checkpoint before exit/timeout"
         time.sleep(0.5)
     proc.send_signal(signal.SIGTERM)
+    os.killpg(proc.pid, signal.SIGTERM)
     out, _ = proc.communicate(timeout=300)
     assert proc.returncode == 130, out[-2000:]
     assert "--resume" in out
+    assert out.count("SIGTERM: stopping at the next safe point") == 1, out[-2000:]
+    assert "second SIGTERM" not in out, out[-2000:]
     with open(run / "train.mcap", "rb") as f:
         reader = make_reader(f)
         assert reader.get_summary() is not None

@@ -591,6 +591,30 @@ def test_second_signal_calls_the_emergency_exit_at_once(monkeypatch):
     assert signal.getsignal(signal.SIGINT) is before
 
 
+def test_the_same_signal_twice_at_once_is_one_request(monkeypatch):
+    # GNU timeout sends its signal to the command and then to the command's process group: the
+    # trainer got SIGTERM twice, microseconds apart, and stopped at once instead of at the safe
+    # point. A repeat of the same signal within same_request_s counts once; a repeat after it, or
+    # another signal, is a second request (hand-stepped clock, no real signals).
+    exits, closed = [], []
+    monkeypatch.setattr(os, "_exit", exits.append)
+    now = [100.0]
+    stop = monitor.SignalStop(emergency=closed.append, clock=lambda: now[0])
+    stop._on_signal(signal.SIGTERM)
+    now[0] += 1e-5  # the process group's copy
+    stop._on_signal(signal.SIGTERM)
+    assert stop.signum == signal.SIGTERM and stop.signals == 1 and not exits
+    now[0] += stop.same_request_s  # a person's second kill
+    stop._on_signal(signal.SIGTERM)
+    assert exits == [130] and closed == ["second SIGTERM"]
+
+    exits.clear(), closed.clear()
+    other = monitor.SignalStop(emergency=closed.append, clock=lambda: now[0])
+    other._on_signal(signal.SIGTERM)
+    other._on_signal(signal.SIGINT)  # another signal at the same instant: a second request
+    assert exits == [130] and closed == ["second SIGINT"]
+
+
 def _script(*args):
     return [
         sys.executable,

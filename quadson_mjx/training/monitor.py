@@ -133,11 +133,19 @@ class SignalStop:
     flushes stdout and stderr and ends the process with os._exit(130), without unwinding the
     compiling main thread or running interpreter shutdown next to XLA's threads. Checkpoints and
     config.json are written atomically, so the run stays resumable.
+
+    The same signal again within `same_request_s` of the first is the same request, not a second
+    one: GNU `timeout` signals the command and then its whole process group, so a run under
+    `timeout` receives its SIGTERM twice, microseconds apart, and would otherwise skip the safe
+    point it was asked to stop at.
     """
 
     signum: int | None = None
     emergency: object = None  # () -> None, called on the second signal before the process exits
     signals: int = 0
+    same_request_s: float = 0.1
+    clock: object = time.monotonic  # () -> seconds; replaceable in tests
+    _first_at: float | None = None
     _watcher: threading.Thread | None = None
 
     def check(self) -> None:
@@ -145,10 +153,18 @@ class SignalStop:
             raise StopRequested(f"stopped by {signal.Signals(self.signum).name}")
 
     def _on_signal(self, signum: int) -> None:
+        now = self.clock()
+        if (
+            self.signum == signum
+            and self._first_at is not None
+            and now - self._first_at < self.same_request_s
+        ):
+            return  # the same request delivered twice (the process and its group)
         self.signals += 1
         if self.signals >= 2:
             self._exit_now(signum)
         self.signum = signum
+        self._first_at = now
         message = (
             f"\n{signal.Signals(signum).name}: stopping at the next safe point (after the compilation or "
             "training epoch under way; a second signal stops at once)\n"
