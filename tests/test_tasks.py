@@ -156,6 +156,8 @@ COMMITTED_RUNS = {
     "results/policy_h200_sensors_e16u10": ("QuadsonJoystickRough", C048_HFC1),
     # and that fine-tuned for 80M steps at a 2 ms physics step
     "results/policy_h200_sensors_e16u10_dt2": ("QuadsonJoystickRough", [*C048_HFC1, "sim_dt=0.002"]),
+    # and the same fine-tune at half the learning rate (3e-4)
+    "results/policy_h200_sensors_e16u10_dt2_lr3": ("QuadsonJoystickRough", [*C048_HFC1, "sim_dt=0.002"]),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
