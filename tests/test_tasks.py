@@ -152,6 +152,11 @@ COMMITTED_RUNS = {
         "QuadsonJoystickRough",
         [*(k for k in C048 if k != "impl=warp"), "sim_dt=0.002"],
     ),
+    # and the same fine-tune at half the learning rate (3e-4)
+    "results/policy_h200_sensors_dt2/comparison/lr3": (
+        "QuadsonJoystickRough",
+        [*(k for k in C048 if k != "impl=warp"), "sim_dt=0.002"],
+    ),
     # the 0.48 s trot recipe on JAX with one contact a foot, 16384 robots and a 10-step unroll
     "results/policy_h200_sensors_e16u10": ("QuadsonJoystickRough", C048_HFC1),
     # and that fine-tuned for 80M steps at a 2 ms physics step
