@@ -664,6 +664,52 @@ def contested_run(tmp_path_factory):
     return result
 
 
+# A process that has stopped its run and now exits through a slow clean-up, as jax's at exit: the
+# signal arrives while that clean-up runs. "guard" installs the script's handler, "none" does not.
+_SLOW_EXIT = """
+import atexit, sys, time
+from quadson_mjx.cli.train import exit_at_once_on_another_signal
+def slow_clean_up():
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 20.0:
+        sum(range(1000))
+atexit.register(slow_clean_up)
+if sys.argv[1] == "guard":
+    exit_at_once_on_another_signal()
+print("exiting", flush=True)
+sys.exit(130)
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_regression_a_signal_during_the_exit_after_a_stop_ends_it_at_once(signum):
+    # The two-Ctrl-C test once failed on a fast machine: the first signal stopped the run at its
+    # safe point, the second came during the interpreter's exit (jax's clean-up, about 2 s) and was
+    # printed as a KeyboardInterrupt traceback. Now the script exits at once with one line.
+    def run(mode):
+        p = subprocess.Popen(
+            [sys.executable, "-c", _SLOW_EXIT, mode],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
+        assert p.stdout.readline().strip() == "exiting"
+        time.sleep(0.5)  # inside the clean-up
+        t0 = time.monotonic()
+        p.send_signal(signum)
+        out, err = p.communicate(timeout=60)
+        return p.returncode, err, time.monotonic() - t0
+
+    code, err, seconds = run("guard")
+    assert code == 130 and seconds < 5, (code, seconds, err)
+    assert "Traceback" not in err
+    assert err.strip().splitlines() == [f"second {signum.name}: stopped at once"]
+    if signum == signal.SIGINT:  # without the handler: the traceback this test is about
+        _, err, _ = run("none")
+        assert "Traceback" in err and "KeyboardInterrupt" in err
+
+
 def test_regression_two_trainers_on_one_directory(contested_run):
     # The second trainer overwrote config.json (its config said [16], its checkpoints [8]) and died
     # with a FileExistsError. Now it refuses with one line naming the first one's pid.

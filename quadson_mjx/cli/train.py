@@ -26,6 +26,7 @@ Ctrl-C or SIGTERM stops at the next safe point with status 130 (twice: at once, 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -153,6 +154,26 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def exit_at_once_on_another_signal() -> None:
+    """After a stopped run has closed its files, a further Ctrl-C or SIGTERM ends the process at once
+    with status 130 and one line. Without it the interpreter's shutdown, which can take seconds
+    (jax clears its backends and caches at exit), got the signal as a KeyboardInterrupt and printed
+    a traceback from inside that clean-up."""
+
+    def now(signum, frame):
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        with contextlib.suppress(OSError, ValueError):
+            os.write(
+                sys.stderr.fileno(), f"\nsecond {signal.Signals(signum).name}: stopped at once\n".encode()
+            )
+        os._exit(130)
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, now)
+
+
 def new_run_configs(env_cfg, ppo_cfg, overrides, run_dir, primary: bool):
     """A new run's configs: the --env./--ppo. overrides applied and checked, and its run directory
     (default runs/<date-time>; on the primary process checked to be new) -> (env_cfg, ppo_cfg,
@@ -210,6 +231,7 @@ def main(argv=None) -> int:
 
 def _main(argv) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
+    args.program = argv is None  # this process's own command line: it may own the process's signals
     if args.list_tasks:
         print(list_tasks())
         return 0
@@ -310,6 +332,8 @@ def _run(args, overrides, stop) -> int:
             raise
         raise UsageError(lost_peer(e)) from None
     except KeyboardInterrupt:
+        if args.program:
+            exit_at_once_on_another_signal()
         print(f"\ninterrupted: the log {run_dir / 'train.mcap'} is closed and readable.")
         if (run_dir / "config.json").exists():
             try:
