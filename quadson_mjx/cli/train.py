@@ -26,7 +26,6 @@ Ctrl-C or SIGTERM stops at the next safe point with status 130 (twice: at once, 
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import sys
@@ -161,14 +160,7 @@ def exit_at_once_on_another_signal() -> None:
     a traceback from inside that clean-up."""
 
     def now(signum, frame):
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        with contextlib.suppress(OSError, ValueError):
-            os.write(
-                sys.stderr.fileno(), f"\nsecond {signal.Signals(signum).name}: stopped at once\n".encode()
-            )
-        os._exit(130)
+        training.monitor.exit_at_once(signum)
 
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, now)

@@ -121,6 +121,25 @@ class StopRequested(KeyboardInterrupt):
     """SIGINT or SIGTERM asked a training run to stop; raised at the next safe point (see train)."""
 
 
+def exit_at_once(signum: int, emergency=None) -> None:
+    """Ends the process now with status 130 after a second signal: `emergency(reason)` (closes what
+    must be closed, says how to continue) or one line "second SIG...: stopped at once"; stdout and
+    stderr flushed; os._exit, so no interpreter shutdown runs."""
+    reason = f"second {signal.Signals(signum).name}"
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(Exception):
+        if callable(emergency):
+            emergency(reason)
+        else:
+            os.write(sys.stderr.fileno(), f"\n{reason}: stopped at once\n".encode())
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(130)
+
+
 @dataclasses.dataclass
 class SignalStop:
     """Signals deferred to a flag that the training loop checks at safe points.
@@ -173,19 +192,7 @@ class SignalStop:
             os.write(sys.stderr.fileno(), message.encode())
 
     def _exit_now(self, signum: int) -> None:
-        reason = f"second {signal.Signals(signum).name}"
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        with contextlib.suppress(Exception):
-            if callable(self.emergency):
-                self.emergency(reason)  # closes what must be closed, says how to continue
-            else:
-                os.write(sys.stderr.fileno(), f"\n{reason}: stopped at once\n".encode())
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        os._exit(130)
+        exit_at_once(signum, self.emergency)
 
     def handler(self, signum, frame):
         if self._watcher is None:  # no watcher thread (not the main thread's loop): count here
