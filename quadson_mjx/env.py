@@ -360,7 +360,7 @@ class LocomotionEnv(Env):
             tile_level=level,
             tile_progress_m=jnp.zeros(()),
             tile_commanded_m=jnp.zeros(()),
-            tile_result=jnp.full((), -1.0),
+            tile_result=jnp.full((), -1.0, jnp.float32),
         )
         return state
 

@@ -167,7 +167,7 @@ class GetupEnv(LocomotionEnv):
             "last_action": jnp.zeros(self.action_size),
             "last_ctrl": ctrl,
             "stand_s": jnp.zeros(()),  # how long the success condition has held without a break [s]
-            "success_s": jnp.full((), -1.0),  # when the successful stand began [s]; -1: not yet
+            "success_s": jnp.full((), -1.0, jnp.float32),  # when the successful stand began [s]; -1: not yet
             "start_class": jnp.where(
                 toppled, TOPPLED_CLASS, jnp.where(standing, STANDING_CLASS, start.label)
             ),

@@ -14,6 +14,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from brax.envs.wrappers.training import EvalWrapper
+from state_types import assert_step_keeps_state_types
 
 from quadson_mjx import obs_spec
 from quadson_mjx.config import apply_overrides
@@ -23,6 +25,7 @@ from quadson_mjx.getup_env import STANDING_CLASS, TOPPLED_CLASS, GetupEnv
 from quadson_mjx.robots.quadson import chain_guard, fivebar, getup_start
 from quadson_mjx.robots.quadson import constants as C
 from quadson_mjx.robots.quadson.mirror import mirror_getup_observation, mirror_motors
+from quadson_mjx.wrappers import wrap_for_training
 
 ROOT = Path(__file__).resolve().parents[1]
 N = 32  # environments of the compiled batch
@@ -196,6 +199,15 @@ def test_legs_touch_the_ground_in_the_task_model(rollout, getup):
         touched |= {int(g) for g in d.contact.geom.ravel()[: 2 * d.ncon]}
     assert touched - feet - {0}, "no leg link or hip touched the ground"
     assert np.min(d.geom_xpos[1:, 2] + m.geom_rbound[1:]) > 0.0
+
+
+def test_a_step_keeps_the_state_types_so_the_evaluation_compiles_once(getup):
+    """Regression: the reset's success_s was weakly typed and the step's not, so brax's evaluation
+    of the get-up task compiled twice."""
+    env = getup[0]
+    evaluated = EvalWrapper(wrap_for_training(env, 10))
+    keys = jax.ShapeDtypeStruct((2, 2), jnp.uint32)
+    assert_step_keeps_state_types(evaluated.reset, evaluated.step, keys, env.action_size, (2,))
 
 
 def test_actor_sees_the_robots_sensors_and_the_critic_more(getup):

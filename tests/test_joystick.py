@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from brax.envs.wrappers.training import EvalWrapper
+from state_types import assert_step_keeps_state_types
 
 from quadson_mjx import terrain
 from quadson_mjx.config import apply_overrides, from_json
@@ -159,6 +161,12 @@ def test_robust_preset_steps_under_training_wrappers(robust):
     assert float(jnp.sum(state.metrics["fall"])) == 0.0
     # ground under the start (the flat patch around the origin) is 0: base_height = z
     np.testing.assert_allclose(state.metrics["base_height"], state.pipeline_state.qpos[:, 2], atol=1e-6)
+
+
+def test_a_step_keeps_the_state_types_so_the_evaluation_compiles_once(robust):
+    env, w, _, _ = robust
+    keys = jax.ShapeDtypeStruct((2, 2), jnp.uint32)
+    assert_step_keeps_state_types(EvalWrapper(w).reset, EvalWrapper(w).step, keys, env.action_size, (2,))
 
 
 def test_the_field_edge_is_a_truncation_not_a_fall(robust):
