@@ -152,8 +152,8 @@ COMMITTED_RUNS = {
         "QuadsonJoystickRough",
         [*(k for k in C048 if k != "impl=warp"), "sim_dt=0.002"],
     ),
-    # and the same fine-tune at half the learning rate (3e-4)
-    "results/policy_h200_sensors_dt2/comparison/lr3": (
+    # and the same fine-tune at half the learning rate (3e-4): the policy for the robot
+    "results/policy_h200_sensors_dt2_lr3": (
         "QuadsonJoystickRough",
         [*(k for k in C048 if k != "impl=warp"), "sim_dt=0.002"],
     ),
