@@ -165,8 +165,9 @@ def test_robust_preset_steps_under_training_wrappers(robust):
 
 def test_a_step_keeps_the_state_types_so_the_evaluation_compiles_once(robust):
     env, w, _, _ = robust
+    evaluated = EvalWrapper(w)
     keys = jax.ShapeDtypeStruct((2, 2), jnp.uint32)
-    assert_step_keeps_state_types(EvalWrapper(w).reset, EvalWrapper(w).step, keys, env.action_size, (2,))
+    assert_step_keeps_state_types(evaluated.reset, evaluated.step, keys, env.action_size, (2,))
 
 
 def test_the_field_edge_is_a_truncation_not_a_fall(robust):
