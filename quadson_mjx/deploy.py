@@ -69,6 +69,7 @@ class LoopConfig(NamedTuple):
     observation: str  # "sensors" or "true_state" (env_config.OBSERVATIONS)
     obs_history: int
     yaw_error_tau_s: float  # s; 0: no yaw_error entry (obs_spec.yaw_error_step)
+    observe_servo_latency: bool  # the servo_latency entry (obs_spec.SERVO_LATENCY)
     command_range: np.ndarray  # (3, 2) the trained command range (vx, vy, yaw rate)
 
     @classmethod
@@ -86,6 +87,7 @@ class LoopConfig(NamedTuple):
             observation=str(cfg.get("observation", "true_state")),
             obs_history=int(cfg.get("obs_history", 1)),
             yaw_error_tau_s=float(cfg.get("yaw_error_tau_s", 0.0)),
+            observe_servo_latency=bool(cfg.get("observe_servo_latency", False)),
             command_range=np.array([rng.get(k, (-np.inf, np.inf)) for k in ("vx", "vy", "yaw_rate")], float),
         )
 
@@ -105,6 +107,7 @@ class LoopConfig(NamedTuple):
                 self.obs_history,
                 self.command_tracking,
                 yaw_error=bool(self.yaw_error_tau_s),
+                servo_latency=self.observe_servo_latency,
             )
         return obs_spec.locomotion_observation(r.legs, r.motor_names, self.command_tracking)
 
@@ -132,6 +135,15 @@ class StepResult(NamedTuple):
     @property
     def observation(self) -> np.ndarray:
         return self.obs
+
+
+def _servo_latency_range(meta: dict) -> tuple[float, float]:
+    """The measured servo latencies [s] a policy was trained to observe: the trained actuation
+    latency range widened by the calibration's error (export metadata "trained_sensor_model")."""
+    trained = meta.get("trained_sensor_model") or {}
+    lo, hi = trained.get("actuation_latency_s") or (0.0, 0.0)
+    error = float((trained.get("sensor") or {}).get("servo_latency_error_s", 0.0))
+    return max(float(lo) - error, 0.0), float(hi) + error
 
 
 def _smoothstep(s: float) -> float:
@@ -165,6 +177,9 @@ class DeployLoop:
         self.needs_lin_vel = "estimator" in c.obs_spec.sensors()
         # trained for a calibrated IMU (deploy_imu.needs_calibration): no walk before imu_calibration
         self.needs_imu_calibration = needs_calibration(meta)
+        # observes the servos' latency measured on the robot: no walk before servo_latency_s is set
+        self.needs_servo_latency = "servo_latency" in {e.name for e in c.obs_spec.entries}
+        self.servo_latency_range = _servo_latency_range(meta) if self.needs_servo_latency else None
         r = c.robot
         safety = safety or SafetyConfig()
         if safety.max_rate_rps is None:
@@ -218,6 +233,25 @@ class DeployLoop:
                 f"imu_calibration: a deploy_imu.ImuCalibration or None, not {type(cal).__name__}"
             )
         self.observer.imu_calibration = cal
+
+    @property
+    def servo_latency_s(self):
+        """The servos' actuation latency measured on the robot [s] (a policy whose observation has
+        a servo_latency entry), or None (the default)."""
+        return self.observer.servo_latency_s
+
+    @servo_latency_s.setter
+    def servo_latency_s(self, latency_s) -> None:
+        if not self.needs_servo_latency:
+            raise ValueError("servo_latency_s: this policy does not observe the servos' latency")
+        lo, hi = self.servo_latency_range
+        value = float(latency_s)
+        if not lo <= value <= hi:  # also refuses NaN
+            raise ValueError(
+                f"servo_latency_s {value!r}: the policy was trained for a measured latency in "
+                f"[{lo:g}, {hi:g}] s"
+            )
+        self.observer.servo_latency_s = value
 
     def reset_heading(self, imu_quat_wxyz=None) -> None:
         """The IMU's yaw becomes 0: the given orientation's, else the last step's, else the next
@@ -290,6 +324,11 @@ class DeployLoop:
                 f"this policy was trained for a calibrated IMU (mounting tilt within {tilt} rad): set "
                 "loop.imu_calibration = deploy_imu.calibrate_imu(quats, gyros) from the robot standing "
                 "still on level ground first"
+            )
+        if self.needs_servo_latency and self.servo_latency_s is None:
+            raise ValueError(
+                "this policy observes the servos' latency: set loop.servo_latency_s to the latency "
+                "measured on the robot first"
             )
         reasons = check_sensors(self.safety.cfg, c.robot.motor_limits, quat, gyro, motor_pos, base_lin_vel)
         if not np.all(np.isfinite(command)):
@@ -364,6 +403,8 @@ def bench(path: str | Path, n_steps: int = 2000) -> dict:
     }
     if loop.needs_lin_vel:
         sensors["base_lin_vel"] = np.zeros(3)
+    if loop.needs_servo_latency:  # any value in the trained range times the same
+        loop.servo_latency_s = sum(loop.servo_latency_range) / 2
     if loop.needs_imu_calibration:  # the level, still reading the bench feeds: no correction
         loop.imu_calibration = calibrate_imu(np.tile(sensors["imu_quat_wxyz"], (50, 1)), np.zeros((50, 3)))
     for _ in range(50):  # warm-up: first calls allocate
@@ -392,6 +433,7 @@ def describe(loop: DeployLoop) -> str:
     needs = [
         *(["base_lin_vel from an estimator"] if loop.needs_lin_vel else []),
         *(["an IMU calibration (loop.imu_calibration)"] if loop.needs_imu_calibration else []),
+        *(["the servos' measured latency (loop.servo_latency_s)"] if loop.needs_servo_latency else []),
     ]
     return (
         f"{c.robot.name}, {c.observation} observation ({c.obs_size} values), {c.action_size} actions, "

@@ -16,6 +16,7 @@ Entries, by name:
   command (3)        the command.
   yaw_error (1)      obs_spec.yaw_error_step of the gyro's z and the command's yaw rate: 0 at the
                      first tick after a reset or a resync, then integrated every committed tick.
+  servo_latency (1)  the servos' latency measured on the robot [s] (servo_latency_s), every tick.
 After a fault the history restarts from the next good tick (as after reset, the last action kept).
 """
 
@@ -44,6 +45,7 @@ class ObservationBuilder:
             raise ValueError("the observation has a yaw_error entry but no yaw_error_tau_s > 0")
         self.lags = _max_lag(spec)
         self.imu_calibration = None  # deploy_imu.ImuCalibration applied to every reading, or None
+        self.servo_latency_s = None  # the servo_latency entry's value [s], or None
         self.heading = None  # (4,) quaternion rotating the world by -yaw0 about z, or None
         self._pending_heading = False
         self._last_quat = None
@@ -108,6 +110,7 @@ class ObservationBuilder:
             "phase_cos": lambda: np.cos(phase),
             "command": lambda: command,
             "yaw_error": lambda: yaw_error,
+            "servo_latency": self._servo_latency,
         }
         parts = {}
         for e in self.spec.entries:
@@ -116,6 +119,11 @@ class ObservationBuilder:
             parts[e.name] = np.asarray(parts[e.name], np.float64).reshape(e.size)
         self._pending = (history, motor_pos, yaw_error)
         return self.spec.assemble(parts).astype(np.float32)
+
+    def _servo_latency(self):
+        if self.servo_latency_s is None:
+            raise ValueError("the observation has a servo_latency entry but no servo_latency_s was given")
+        return self.servo_latency_s
 
     def commit(self, action) -> None:
         """The tick's policy output was used: the history moves on; action (clipped) is the next

@@ -25,7 +25,7 @@ from quadson_mjx.policy_file import FORMAT_VERSIONS, NumpyPolicy
 # obs_spec.HISTORY_ENTRIES
 BUILDABLE = (
     "base_rpy", "base_lin_vel", "base_ang_vel", "motor_pos", "phase_sin", "phase_cos", "command",
-    "gravity", "gyro", "motor_vel", "last_action", "yaw_error",
+    "gravity", "gyro", "motor_vel", "last_action", "yaw_error", "servo_latency",
 )  # fmt: skip
 
 

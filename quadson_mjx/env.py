@@ -126,6 +126,7 @@ class LocomotionEnv(Env):
                 cfg.obs_history,
                 cfg.command_tracking,
                 yaw_error=bool(cfg.yaw_error_tau_s),
+                servo_latency=cfg.observe_servo_latency,
             )
         else:
             self._obs_spec = obs_spec.locomotion_observation(
@@ -308,6 +309,10 @@ class LocomotionEnv(Env):
         if self._sensor_obs:  # a key of its own: the other draws stay those of a true_state config
             timestep = float(self._mj_model.opt.timestep)
             info.update(sensors.episode_sensor_errors(cfg, timestep, jax.random.fold_in(rng, 7)))
+            if cfg.observe_servo_latency:
+                info["servo_latency_reading"] = sensors.servo_latency_reading(
+                    cfg, latency_steps * timestep, jax.random.fold_in(rng, 11)
+                )
         return info
 
     @property

@@ -73,6 +73,7 @@ ENV_KEYS_ADDED = {
     "observation": "true_state",
     "obs_history": 1,
     "yaw_error_tau_s": 0.0,
+    "observe_servo_latency": False,
     "asymmetric_critic": False,
     "critic_scan_points": 0,
     "critic_scan_spacing_m": 0.05,
@@ -273,6 +274,10 @@ def env_config(
             # integral of the gyro's yaw rate minus the commanded one, with this time constant [s];
             # 0: no such entry. Needs command_tracking.
             "yaw_error_tau_s": 0.0,
+            # the "sensors" observation's servo_latency entry (obs_spec.SERVO_LATENCY): the servos'
+            # actuation latency as measured on the robot before it walks (in training the episode's
+            # randomization.latency_s with the calibration's error sensor.servo_latency_error_s)
+            "observe_servo_latency": False,
             "asymmetric_critic": asymmetric_critic,
             # the critic's ground scan (asymmetric_critic, locomotion): an n x n grid of ground
             # heights (n = critic_scan_points, 0: none), spacing apart, centred under the base and
@@ -406,6 +411,7 @@ ENV_RULES: dict[str, Rule] = {
     "observation": Rule("name"),
     "obs_history": Rule("int", 1, 16, "ticks"),
     "yaw_error_tau_s": Rule("number", 0.0, 60.0, _S),
+    "observe_servo_latency": Rule("bool"),
     "asymmetric_critic": Rule("bool"),
     "critic_scan_points": Rule("int", 0, 31),
     "critic_scan_spacing_m": Rule("number", 0.0, 0.5, _M, lo_open=True),
@@ -416,6 +422,7 @@ ENV_RULES: dict[str, Rule] = {
     "sensor.encoder_noise_rad": Rule("number", 0.0, 0.5, _RAD),
     "sensor.encoder_resolution_rad": Rule("number", 0.0, 0.5, _RAD),
     "sensor.latency_s": Rule("pair", 0.0, 0.5, _S),
+    "sensor.servo_latency_error_s": Rule("number", 0.0, 0.1, _S),
     "randomize": Rule("bool"),
     "randomization.friction": Rule("pair", 0.0, 5.0, lo_open=True),
     "randomization.mass_scale": Rule("pair", 0.0, 5.0, lo_open=True),
@@ -527,6 +534,8 @@ def check_env_config(cfg) -> None:
         raise ValueError("env.obs_history > 1 needs env.observation=sensors")
     if cfg.yaw_error_tau_s and (cfg.observation != "sensors" or not cfg.command_tracking):
         raise ValueError("env.yaw_error_tau_s > 0 needs env.observation=sensors and a command to track")
+    if cfg.observe_servo_latency and (cfg.observation != "sensors" or cfg.task != "locomotion"):
+        raise ValueError("env.observe_servo_latency needs env.observation=sensors and the locomotion task")
     if cfg.critic_scan_points and (not cfg.asymmetric_critic or cfg.task != "locomotion"):
         raise ValueError(
             "env.critic_scan_points > 0 needs env.asymmetric_critic=true and the locomotion task"

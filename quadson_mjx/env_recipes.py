@@ -122,4 +122,7 @@ SENSOR_MODEL = {
     "encoder_noise_rad": 0.005,  # std [rad]
     "encoder_resolution_rad": 2 * math.pi / 4096,  # quantisation step [rad]; 0: none
     "latency_s": (0.0, 0.02),  # age of the readings, per episode [s], in physics timesteps
+    # the servos' latency as the robot's calibration measures it (env observe_servo_latency): the
+    # episode's actuation latency + an error uniform in +- this, per episode [s]
+    "servo_latency_error_s": 0.002,
 }

@@ -19,14 +19,15 @@ from collections.abc import Mapping, Sequence
 from quadson_mjx.arrays import namespace
 
 # sensors an observation entry may come from: "estimator" is a state estimator the robot would need
-# (the project provides none), "simulator" what only a simulator knows (the critic's privileged view)
-SENSORS = ("imu", "encoders", "estimator", "clock", "command", "policy", "simulator")
+# (the project provides none), "calibration" a constant measured on the robot before it walks (the
+# servos' latency), "simulator" what only a simulator knows (the critic's privileged view)
+SENSORS = ("imu", "encoders", "estimator", "clock", "command", "policy", "calibration", "simulator")
 # where a policy whose observation has an "estimator" entry gets its base velocity outside training
 # (policy_eval in MJX, sim2sim in MuJoCo C): the simulator's true value, zeros (no estimator), or
 # the commanded vx, vy as the estimate
 VELOCITY_SOURCES = ("true", "zero", "command")
 # what the robot measures or knows by itself: an actor whose spec uses only these runs on the robot
-ROBOT_SENSORS = ("imu", "encoders", "clock", "command", "policy")
+ROBOT_SENSORS = ("imu", "encoders", "clock", "command", "policy", "calibration")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,6 +187,7 @@ def sensor_observation(
     history: int = 1,
     command: bool = True,
     yaw_error: bool = False,
+    servo_latency: bool = False,
 ) -> Spec:
     """The actor's observation from the robot's own sensors only (ROBOT_SENSORS): the IMU's gravity
     direction in the body frame (no absolute yaw) and gyroscope, the motor encoders' angles and their
@@ -194,7 +196,8 @@ def sensor_observation(
     none). history > 1 adds the IMU, encoder and action entries of the
     history - 1 ticks before, newest first ("gyro@-1", ..., HISTORY_ENTRIES). yaw_error adds, last,
     a leaky integral of the gyro's yaw rate minus the commanded yaw rate (yaw_error_step):
-    how far the body has turned off the commanded turn over the last time constant."""
+    how far the body has turned off the commanded turn over the last time constant. servo_latency
+    adds, last, the servos' actuation latency as measured on the robot (SERVO_LATENCY)."""
     if history < 1:
         raise ValueError(f"history {history}: need at least 1 tick")
     if yaw_error and not command:
@@ -224,6 +227,8 @@ def sensor_observation(
         entries.append(COMMAND)
     if yaw_error:
         entries.append(YAW_ERROR)
+    if servo_latency:
+        entries.append(SERVO_LATENCY)
     return Spec(tuple(entries))
 
 
@@ -233,6 +238,16 @@ YAW_ERROR = entry(
     "rad",
     "imu",
     "leaky integral of gyro z - commanded yaw rate (time constant: env config yaw_error_tau_s)",
+)
+
+
+SERVO_LATENCY = entry(
+    "servo_latency",
+    ("measured",),
+    "s",
+    "calibration",
+    "the servos' actuation latency, measured on the robot (deploy_servo.measure_latency); in "
+    "training the episode's latency with the calibration's error (env sensor.servo_latency_error_s)",
 )
 
 

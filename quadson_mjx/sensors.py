@@ -73,6 +73,16 @@ def episode_sensor_errors(cfg, timestep: float, rng) -> dict:
     }
 
 
+def servo_latency_reading(cfg, latency_s, rng):
+    """The servos' latency as the robot's calibration reports it for an episode whose actuation
+    latency is latency_s [s] (the env's, in physics timesteps): latency_s + an error uniform in
+    +-cfg.sensor.servo_latency_error_s when cfg.randomize (else latency_s), not below 0 -> () [s]."""
+    if not cfg.randomize:
+        return jnp.asarray(latency_s, jnp.float32)
+    e = cfg.sensor.servo_latency_error_s
+    return jnp.maximum(latency_s + jax.random.uniform(rng, (), minval=-e, maxval=e), 0.0).astype(jnp.float32)
+
+
 def gravity_direction(imu_quat):
     """(..., 4) wxyz orientation of the IMU in a z-up world -> (..., 3) the unit gravity direction in
     the IMU's frame ((0, 0, -1) when level); yaw-independent. The deploy loop computes the same."""
@@ -166,6 +176,8 @@ def sensor_step(cfg, qpos, qvel, motor_pos, info: dict, ctrl_dt: float, phase) -
                 info["yaw_error"], readings["gyro"][2:], info["command"][2:], ctrl_dt, cfg.yaw_error_tau_s
             )
         parts["yaw_error"] = info["yaw_error"]
+    if cfg.observe_servo_latency:  # measured once before the walk (episode_info)
+        parts["servo_latency"] = info["servo_latency_reading"][None]
     if not cfg.command_tracking:  # a gait policy at the gait's own speed observes no command
         del parts["command"]
     return parts, info

@@ -240,7 +240,8 @@ def run_episode(
     robot stands that long at home on level ground while the IMU is read each tick, and the loop
     takes its deploy_imu calibration from those readings, as a robot does on a level floor before
     its walk: on flat ground in the plant itself, elsewhere in a level twin of it
-    (level_twin)."""
+    (level_twin). A policy that observes the servos' latency is given the plant's (ValueError when
+    it is outside the range the policy was trained for)."""
     term = {
         "max_tilt_rad": math.pi / 4,
         "min_height_m": 0.1,
@@ -255,6 +256,8 @@ def run_episode(
     if imu_calibration_s > 0:
         floor = plant if terrain == "flat" else level_twin(plant, seed)
         adapter.loop.imu_calibration = calibrate_imu(*standing_readings(floor, imu_calibration_s, dt))
+    if adapter.loop.needs_servo_latency:  # the plant's own latency, as a perfect calibration measures it
+        adapter.loop.servo_latency_s = plant.delay * float(plant.m.opt.timestep)
     adapter.reset(plant.read())
     n = int(round(duration_s / dt))
     err, vx, forces, stance = [], [], [], []

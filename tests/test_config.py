@@ -113,6 +113,8 @@ def test_network_sizes_take_any_depth():
         ("yaw_error_tau_s=-1", "env.yaw_error_tau_s"),
         # the yaw error integrates the commanded yaw rate's error from the gyro: sensors and a command
         ("yaw_error_tau_s=1", "env.yaw_error_tau_s > 0 needs env.observation=sensors"),
+        ("observe_servo_latency=true", "env.observe_servo_latency needs env.observation=sensors"),
+        ("sensor.servo_latency_error_s=-0.001", "env.sensor.servo_latency_error_s"),
     ],
 )
 def test_env_config_values_out_of_range_are_errors_naming_the_key_regression(override, key):

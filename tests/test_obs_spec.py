@@ -87,6 +87,10 @@ class _Policy:
             "env_config": json.loads(to_json(env.config)),
             "obs_spec": env.obs_spec.to_json(),
             "action_spec": env.action_spec.to_json(),
+            "trained_sensor_model": {  # as export_meta records it
+                "actuation_latency_s": list(env.config.randomization.latency_s),
+                "sensor": {"servo_latency_error_s": env.config.sensor.servo_latency_error_s},
+            },
         }
         self.obs_size, self.action_size = env.observation_size, env.action_size
 
@@ -151,6 +155,7 @@ def sensor_env():
     cfg.observation = "sensors"
     cfg.obs_history = 3
     cfg.yaw_error_tau_s = 0.5
+    cfg.observe_servo_latency = True
     cfg.lock()
     return LocomotionEnv(cfg)
 
@@ -159,13 +164,25 @@ def test_env_and_deploy_loop_build_the_same_sensor_observation_from_the_same_str
     """The jitted env steps with random actions; the loop is fed what the env's sensors read at each
     tick (IMU quaternion and gyro, the encoders quantised as the env quantises them) and returns the
     same actions: its observation (gravity, gyro, encoders, their velocity, last action, two ticks of
-    history, phases, command, the yaw error) equals the env's to float32 precision, from the first
-    tick on. The yaw error also equals its recurrence worked by hand from the env's gyro entries."""
+    history, phases, command, the yaw error, the servos' measured latency) equals the env's to
+    float32 precision, from the first tick on. The yaw error also equals its recurrence worked by
+    hand from the env's gyro entries."""
     env = sensor_env
     loop = deploy.DeployLoop(_Policy(env))
     assert loop.config.obs_spec == env.obs_spec and not loop.needs_lin_vel
+    assert loop.needs_servo_latency and loop.servo_latency_range == pytest.approx((0.0, 0.022))
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     state = reset(jax.random.PRNGKey(4))
+    with pytest.raises(ValueError, match="set loop.servo_latency_s"):
+        loop.step(np.array([1.0, 0, 0, 0]), np.zeros(3), loop.config.robot.home_motor, command=np.zeros(3))
+    # an episode whose servos were measured at 13 ms (the env config is not randomized: 0 otherwise)
+    latency = env.obs_spec.slices()["servo_latency"]
+    assert float(state.obs[latency][0]) == 0.0
+    state = state.replace(
+        info={**state.info, "servo_latency_reading": jnp.float32(0.013)},
+        obs=state.obs.at[latency].set(0.013),
+    )
+    loop.servo_latency_s = 0.013
     actions = np.asarray(
         jax.random.uniform(jax.random.PRNGKey(5), (20, env.action_size), minval=-0.4, maxval=0.4)
     )
@@ -189,10 +206,30 @@ def test_env_and_deploy_loop_build_the_same_sensor_observation_from_the_same_str
         if k:  # 0 at the first tick, then e <- e exp(-dt / tau) + dt (gyro z - commanded yaw rate)
             by_hand = decay * by_hand + dt * (float(want[where["gyro"]][2]) - command[2])
         assert float(want[where["yaw_error"]][0]) == pytest.approx(by_hand, abs=1e-6)
+        assert float(want[latency][0]) == pytest.approx(0.013, abs=1e-9)  # the env's, every tick
         state = step(state, jnp.asarray(actions[k]))
         assert not bool(state.done)
     print(f"sensor observation, env vs loop over 20 ticks: max abs difference {worst:.2e}")
     assert abs(by_hand) > 1e-3  # the random actions turned the body: the entry was exercised
+
+
+def test_the_measured_servo_latency_is_checked_against_the_trained_range(sensor_env, command_env):
+    """The loop refuses a servo latency outside the trained 0-20 ms widened by the calibration's
+    2 ms, a non-finite one, and one for a policy that does not observe it; the entry comes last,
+    from the robot's calibration, so the actor stays robot-measurable."""
+    loop = deploy.DeployLoop(_Policy(sensor_env))
+    for bad in (-0.001, 0.0221, 0.06, float("nan")):
+        with pytest.raises(ValueError, match=r"trained for a measured latency in \[0, 0.022\] s"):
+            loop.servo_latency_s = bad
+    loop.servo_latency_s = 0.022
+    assert loop.servo_latency_s == 0.022
+    assert "servo_latency_s" in deploy.describe(loop)
+    spec = sensor_env.obs_spec
+    assert spec.entries[-1] == obs_spec.SERVO_LATENCY and spec.entries[-1].sensor == "calibration"
+    assert spec.robot_measurable()
+    plain = deploy.DeployLoop(_Policy(command_env))
+    with pytest.raises(ValueError, match="does not observe the servos' latency"):
+        plain.servo_latency_s = 0.01
 
 
 def test_yaw_error_step_by_hand_and_its_bias_level():

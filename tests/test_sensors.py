@@ -77,6 +77,28 @@ def test_episode_sensor_errors_within_their_ranges():
     assert not np.any(still["gyro_bias"]) and int(still["sensor_latency_steps"]) == 0
 
 
+def test_servo_latency_reading_by_hand_and_per_episode():
+    """The calibration's reading: the latency itself without randomization; with it, the latency
+    + an error uniform in +-2 ms, never below 0. Per episode in the env: the episode's actuation
+    latency (in 2 ms physics steps) within 2 ms, every one of its 11 values drawn."""
+    cfg = _cfg(randomize=True)
+    assert float(sensors.servo_latency_reading(_cfg(randomize=False), 0.008, None)) == pytest.approx(0.008)
+    draw = jax.jit(jax.vmap(lambda lat, k: sensors.servo_latency_reading(cfg, lat, k)))
+    lat = jnp.repeat(jnp.asarray([0.0, 0.01]), 2048)
+    r = np.asarray(draw(lat, jax.random.split(jax.random.PRNGKey(0), 4096)))
+    assert r.dtype == np.float32 and r.min() == 0.0
+    err = r[2048:] - 0.01
+    assert np.all(np.abs(err) <= 0.002 + 1e-7) and err.min() < -0.0019 and err.max() > 0.0019
+    assert np.mean(r[:2048] == 0.0) == pytest.approx(0.5, abs=0.05)  # half the draws clipped at 0
+    d = tasks.make_task_config("QuadsonJoystickRough").to_dict()
+    d.update(observe_servo_latency=True, sim_dt=0.002)
+    env = LocomotionEnv(ml_collections.ConfigDict(d))
+    info = jax.jit(jax.vmap(env.episode_info))(jax.random.split(jax.random.PRNGKey(1), 1024))
+    true_s = np.asarray(info["latency_steps"]) * 0.002
+    assert set(np.unique(np.asarray(info["latency_steps"])).tolist()) == set(range(11))
+    assert np.all(np.abs(np.asarray(info["servo_latency_reading"]) - true_s) <= 0.002 + 1e-7)
+
+
 def test_sensor_parts_velocity_and_history_by_hand():
     # three ticks of history, newest first: after the call the newest row is this tick's block
     a = 12

@@ -176,6 +176,41 @@ def test_a_critic_scan_added_starts_where_the_source_was(scanned):
             np.testing.assert_array_equal(new, old, err_msg=f"{field} {name}")
 
 
+@pytest.fixture(scope="module")
+def latency_aware():
+    """The committed tiles policy's final checkpoint widened into a run whose actor (and so its
+    critic) also observes the servos' measured latency."""
+    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
+    src_env = make_env(src_cfg)
+    env = make_env(apply_overrides(src_cfg, ["observe_servo_latency=true"]))
+    ckpt, _ = training.latest_checkpoint(SOURCE)
+    params, widened_from = init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
+    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
+    return src_env, env, ppo_cfg, source, params, widened_from
+
+
+def test_the_measured_servo_latency_starts_with_the_critics_latency_statistics(latency_aware):
+    src_env, env, ppo_cfg, source, params, widened_from = latency_aware
+    assert widened_from == {"observe_servo_latency": 0}
+    assert env.obs_spec.size == src_env.obs_spec.size + 1
+    assert env.obs_spec.entries[-1].name == "servo_latency"
+    _same_outputs(src_env, env, ppo_cfg, source, params)
+    # the source critic's actuation latency: physics' fourth component
+    row = src_env.critic_spec.slices()["physics"].start + 3
+    assert src_env.critic_spec.names[row] == "physics.actuation_latency"
+    for key, spec, net in (("state", env.obs_spec, 1), ("privileged_state", env.critic_spec, 2)):
+        rows = spec.slices()["servo_latency"]
+        for field in ("mean", "std", "summed_variance"):
+            want = np.asarray(getattr(source[0], field)["privileged_state"])[row : row + 1]
+            got = np.asarray(getattr(params[0], field)[key])[rows]
+            np.testing.assert_array_equal(got, want, err_msg=f"{key} {field}")
+        assert not np.any(np.asarray(params[net]["params"]["hidden_0"]["kernel"])[rows])
+    # trained with 0-20 ms uniform: a mean near 10 ms, a std near 20 ms / sqrt(12)
+    mean = float(np.asarray(source[0].mean["privileged_state"])[row])
+    std = float(np.asarray(source[0].std["privileged_state"])[row])
+    assert 0.008 < mean < 0.012 and 0.004 < std < 0.008, (mean, std)
+
+
 def test_a_scan_cannot_be_resized_or_dropped():
     legs = ("fl", "fr", "rl", "rr")
     actor = _spec(1)

@@ -3,12 +3,15 @@ env.obs_history=1 into a run of obs_history=3, or a critic without a ground scan
 env.critic_scan_points=n).
 
 The new observation holds every entry of the old one plus earlier ticks of some of them
-("gyro@-1", obs_spec.lagged) and, for the critic, the ground scan. The widened networks read the
+("gyro@-1", obs_spec.lagged), the servos' measured latency (env.observe_servo_latency) and, for the
+critic, the ground scan. The widened networks read the
 old entries with their trained weights and the new ones with zero weights, so at the start of the
 fine-tune they compute exactly what the source's did. The observation normaliser gives each
 earlier tick the statistics of its current tick (the same signal a tick later), and each cell of
 the ground scan the statistics of the source's ground under the four feet pooled (POOLED_FROM: the
-same quantity, the ground at a point less the ground under the base, at points near the base).
+same quantity, the ground at a point less the ground under the base, at points near the base),
+and the measured servo latency the statistics of the source critic's actuation latency (FROM_CRITIC:
+the same value with a calibration's error).
 Any other difference between the observations (an entry dropped, renamed, resized, or new and
 neither of those) is refused: a weight of zero would not be a neutral start for it, and its
 normaliser statistics would be made up.
@@ -25,6 +28,9 @@ from quadson_mjx.training.networks import POLICY_OBS_KEY, VALUE_OBS_KEY
 
 # a new entry -> the source's entry whose rows' statistics, pooled, each of its values starts with
 POOLED_FROM = {"ground_scan": "ground_under_feet"}
+# a new entry -> (entry, component) of the source's critic observation whose row's statistics it
+# starts with, in either network: the latency the robot measures is the latency the critic saw
+FROM_CRITIC = {"servo_latency": ("physics", 3)}
 
 
 class Source(NamedTuple):
@@ -34,13 +40,15 @@ class Source(NamedTuple):
     own: bool  # True: it is that entry of the old observation (its weights kept); False: new
     size: int  # its number of values (a pooled entry's differs from its rows')
     pooled: bool  # every value takes the rows' statistics pooled (POOLED_FROM); else row by row
+    critic: bool = False  # rows of the source's critic observation (FROM_CRITIC), not this network's
 
 
-def row_sources(old: Spec, new: Spec) -> list[Source]:
+def row_sources(old: Spec, new: Spec, old_critic: Spec | None = None) -> list[Source]:
     """For each entry of `new` in order, its Source: an entry of `old` itself, an earlier tick of
-    one (row by row), or a POOLED_FROM entry. ValueError naming the entries when `new` is not `old`
-    plus such entries."""
+    one (row by row), a POOLED_FROM entry, or a FROM_CRITIC row of old_critic (the source's critic
+    observation). ValueError naming the entries when `new` is not `old` plus such entries."""
     old_rows = old.slices()
+    critic_rows = old_critic.slices() if old_critic is not None else {}
     new_names = {e.name for e in new.entries}
     dropped = [e.name for e in old.entries if e.name not in new_names]
     if dropped:
@@ -55,6 +63,10 @@ def row_sources(old: Spec, new: Spec) -> list[Source]:
         elif POOLED_FROM.get(e.name) in old_rows:
             sources.append(Source(old_rows[POOLED_FROM[e.name]], False, e.size, True))
             continue
+        elif e.name in FROM_CRITIC and FROM_CRITIC[e.name][0] in critic_rows and e.size == 1:
+            row = critic_rows[FROM_CRITIC[e.name][0]].start + FROM_CRITIC[e.name][1]
+            sources.append(Source(slice(row, row + 1), False, 1, False, True))
+            continue
         else:
             unknown.append(e.name)
             continue
@@ -66,7 +78,8 @@ def row_sources(old: Spec, new: Spec) -> list[Source]:
     if unknown:
         raise ValueError(
             f"this run observes {', '.join(unknown)}, which the source did not: only earlier ticks of the "
-            "source's entries (a longer env.obs_history) and the critic's ground scan can be added"
+            "source's entries (a longer env.obs_history), the measured servo latency and the critic's "
+            "ground scan can be added"
         )
     return sources
 
@@ -78,14 +91,20 @@ def _count(count) -> float:
     return float(np.asarray(count))
 
 
-def widen_statistics(mean, summed_variance, std, count: float, eps: float, sources: list[Source]):
+def widen_statistics(
+    mean, summed_variance, std, count: float, eps: float, sources: list[Source], critic=None
+):
     """The normaliser's (mean, summed_variance, std) for the new observation from the old one's
     (brax's Welford statistics over `count` samples, std = sqrt(summed_variance / count + eps)):
-    row by row from each Source's rows, or for a pooled one the statistics of all its rows' values
+    row by row from each Source's rows (a critic Source's from `critic`, the source critic's
+    (mean, summed_variance, std)), or for a pooled one the statistics of all its rows' values
     together (the variance includes the spread of the rows' means) in each of its values."""
     mean, summed_variance, std = (np.asarray(x) for x in (mean, summed_variance, std))
     parts = []
     for src in sources:
+        if src.critic:
+            parts.append([np.asarray(x)[src.rows] for x in critic])
+            continue
         if not src.pooled:
             parts.append([x[src.rows] for x in (mean, summed_variance, std)])
             continue
@@ -119,13 +138,14 @@ def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template):
     if set(old) != {POLICY_OBS_KEY, VALUE_OBS_KEY} or set(new) != set(old):
         raise ValueError("widening needs a dictionary observation (an asymmetric actor-critic) on both sides")
     state = serialization.to_state_dict(params)
-    sources = {k: row_sources(old[k], new[k]) for k in old}
+    sources = {k: row_sources(old[k], new[k], old[VALUE_OBS_KEY]) for k in old}
     norm = state["0"]
     count = _count(norm["count"])  # Welford's statistics (brax's default; the EMA mode is not used)
     eps = float(np.asarray(norm.get("std_eps", 0.0)))
+    critic = tuple(np.asarray(norm[s][VALUE_OBS_KEY]) for s in ("mean", "summed_variance", "std"))
     for k in old:
         norm["mean"][k], norm["summed_variance"][k], norm["std"][k] = widen_statistics(
-            norm["mean"][k], norm["summed_variance"][k], norm["std"][k], count, eps, sources[k]
+            norm["mean"][k], norm["summed_variance"][k], norm["std"][k], count, eps, sources[k], critic
         )
     for index, key in (("1", POLICY_OBS_KEY), ("2", VALUE_OBS_KEY)):
         first = state[index]["params"]["hidden_0"]
@@ -134,7 +154,7 @@ def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template):
 
 
 # the env config keys a widening may change, with the value a config without the key has
-WIDENED_KEYS = {"obs_history": 1, "critic_scan_points": 0}
+WIDENED_KEYS = {"obs_history": 1, "critic_scan_points": 0, "observe_servo_latency": False}
 
 
 def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
