@@ -211,6 +211,61 @@ def test_the_measured_servo_latency_starts_with_the_critics_latency_statistics(l
     assert 0.008 < mean < 0.012 and 0.004 < std < 0.008, (mean, std)
 
 
+def test_gait_actions_added_leave_the_gait_as_it_was():
+    """The committed tiles policy widened into a run with env.gait_action: two more actions (the
+    gait's step length and frequency scales) whose mode is 0 (scale 1) and whose exploration is the
+    trained actions' mean; the source's 12 actions and its value unchanged, whatever the new
+    last_action components read; those take the source's last_action statistics pooled."""
+    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
+    src_env = make_env(src_cfg)
+    env = make_env(apply_overrides(src_cfg, ["gait_action=true"]))
+    ckpt, _ = training.latest_checkpoint(SOURCE)
+    params, widened_from = init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
+    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
+    assert widened_from == {"gait_action": 0} and (src_env.action_size, env.action_size) == (12, 14)
+    assert env.obs_spec.size == src_env.obs_spec.size + 2
+    assert env.critic_spec.size == src_env.critic_spec.size + 2
+    rng = np.random.default_rng(1)
+    old_obs, new_obs = {}, {}
+    for key, s_old, s_new in (
+        ("state", src_env.obs_spec, env.obs_spec),
+        ("privileged_state", src_env.critic_spec, env.critic_spec),
+    ):
+        x_old = rng.normal(size=(16, s_old.size)).astype(np.float32)
+        x_new = rng.normal(size=(16, s_new.size)).astype(np.float32)  # a12, a13 random
+        for name, rows in s_old.slices().items():
+            x_new[:, s_new.slices()[name].start : s_new.slices()[name].start + rows.stop - rows.start] = (
+                x_old[:, rows]
+            )
+        old_obs[key], new_obs[key] = x_old, x_new
+    nets_old = training.make_networks(src_env.observation_size, src_env.action_size, ppo_cfg)
+    nets_new = training.make_networks(env.observation_size, env.action_size, ppo_cfg)
+    key = jax.random.PRNGKey(0)
+    a_old = ppo_networks.make_inference_fn(nets_old)(source, deterministic=True)(old_obs, key)[0]
+    a_new = ppo_networks.make_inference_fn(nets_new)(params, deterministic=True)(new_obs, key)[0]
+    np.testing.assert_allclose(np.asarray(a_new)[:, :12], np.asarray(a_old), rtol=0, atol=1e-6)
+    assert not np.any(np.asarray(a_new)[:, 12:])  # tanh(0): both scales at 1
+    v_old = nets_old.value_network.apply(source[0], source[2], old_obs)
+    v_new = nets_new.value_network.apply(params[0], params[2], new_obs)
+    np.testing.assert_allclose(np.asarray(v_new), np.asarray(v_old), rtol=1e-6, atol=1e-5)
+    out_old = source[1]["params"]["hidden_4"]
+    out_new = params[1]["params"]["hidden_4"]
+    bias_old, bias_new = np.asarray(out_old["bias"]), np.asarray(out_new["bias"])
+    assert bias_new.shape == (28,) and not np.any(np.asarray(out_new["kernel"])[:, [12, 13, 26, 27]])
+    np.testing.assert_array_equal(bias_new[[12, 13]], 0.0)
+    np.testing.assert_allclose(bias_new[[26, 27]], bias_old[12:].mean(), rtol=1e-6)
+    np.testing.assert_array_equal(bias_new[14:26], bias_old[12:])
+    rows_old = src_env.obs_spec.slices()["last_action"]
+    rows_new = env.obs_spec.slices()["last_action"]
+    m_old = np.asarray(source[0].mean["state"], np.float64)[rows_old]
+    m_new = np.asarray(params[0].mean["state"])[rows_new]
+    np.testing.assert_array_equal(m_new[:12], m_old.astype(np.float32))
+    np.testing.assert_allclose(m_new[12:], m_old.mean(), rtol=1e-5)
+    assert not np.any(
+        np.asarray(params[1]["params"]["hidden_0"]["kernel"])[rows_new.start + 12 : rows_new.stop]
+    )
+
+
 def test_a_scan_cannot_be_resized_or_dropped():
     legs = ("fl", "fr", "rl", "rr")
     actor = _spec(1)

@@ -100,10 +100,11 @@ def train(
     moments and the step count start afresh. Its networks must match this run's (the observation
     and action sizes, ppo.policy_hidden and the like): a ValueError names the mismatch; the
     exceptions are a longer env.obs_history than the source's, the measured servo latency added
-    (env.observe_servo_latency) and a critic's ground scan added (env.critic_scan_points), which the
-    networks read with zero weights (training/widen.py; "widened_from_<key>" in the record). The
-    source, its step and the checkpoint's SHA-256 are kept in config.json ("init_from", kept on resume) and
-    in the log's start event, and the step-0 checkpoint is the source's parameters.
+    (env.observe_servo_latency), the gait's two actions added (env.gait_action) and a critic's
+    ground scan added (env.critic_scan_points), which the networks read with zero weights
+    (training/widen.py; "widened_from_<key>" in the record). The source, its step and the
+    checkpoint's SHA-256 are kept in config.json ("init_from", kept on resume) and in the log's
+    start event, and the step-0 checkpoint is the source's parameters.
 
     SIGINT and SIGTERM (Ctrl-C, a scheduler's preemption) are deferred while training: the run
     stops at the next safe point: before a training epoch or an evaluation, or after saving a
@@ -274,6 +275,11 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
             restored += (
                 f"; its critic's ground scan of {origin['widened_from_critic_scan_points']} points a side widened "
                 f"to {env_cfg.critic_scan_points} (the new cells read with zero weights)"
+            )
+        if "widened_from_gait_action" in origin:
+            restored += (
+                "; the gait's step length and frequency scales added to the policy's actions (mode 0: "
+                "the gait as it was) and to both networks' last_action input (read with zero weights)"
             )
         if "widened_from_observe_servo_latency" in origin:
             restored += "; the measured servo latency added to both networks' input (read with zero weights)"

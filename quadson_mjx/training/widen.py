@@ -31,6 +31,9 @@ POOLED_FROM = {"ground_scan": "ground_under_feet"}
 # a new entry -> (entry, component) of the source's critic observation whose row's statistics it
 # starts with, in either network: the latency the robot measures is the latency the critic saw
 FROM_CRITIC = {"servo_latency": ("physics", 3)}
+# entries that grow with the action (env.gait_action adds two actions): the source's components
+# come first, the new ones take the source entry's statistics pooled and zero weights
+GROWN_WITH_ACTIONS = ("last_action",)
 
 
 class Source(NamedTuple):
@@ -48,6 +51,7 @@ def row_sources(old: Spec, new: Spec, old_critic: Spec | None = None) -> list[So
     one (row by row), a POOLED_FROM entry, or a FROM_CRITIC row of old_critic (the source's critic
     observation). ValueError naming the entries when `new` is not `old` plus such entries."""
     old_rows = old.slices()
+    old_entries = {x.name: x for x in old.entries}
     critic_rows = old_critic.slices() if old_critic is not None else {}
     new_names = {e.name for e in new.entries}
     dropped = [e.name for e in old.entries if e.name not in new_names]
@@ -69,6 +73,11 @@ def row_sources(old: Spec, new: Spec, old_critic: Spec | None = None) -> list[So
             continue
         else:
             unknown.append(e.name)
+            continue
+        was = old_entries[e.name if own else base]
+        grown = base in GROWN_WITH_ACTIONS and e.components[: was.size] == was.components
+        if rows.stop - rows.start < e.size and grown:  # the source's actions, then the new ones
+            sources += [Source(rows, own, was.size, False), Source(rows, False, e.size - was.size, True)]
             continue
         if rows.stop - rows.start != e.size:
             raise ValueError(
@@ -127,12 +136,31 @@ def first_layer_rows(kernel, sources: list[Source]) -> np.ndarray:
     return np.concatenate(parts, axis=0)
 
 
-def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template):
+def output_columns(kernel, bias, old_actions: int, new_actions: int):
+    """The policy's output layer (width, 2 x old_actions) and bias for new_actions >= old_actions
+    actions: brax's tanh-normal parameters are [loc (A), scale (A)]; each new action gets zero
+    weights and a zero loc bias (its mode tanh(0) = 0: env.gait_action's scales at 1, the gait as
+    it was), and the mean of the trained scale biases (an exploration like the others')."""
+    kernel, bias = np.asarray(kernel), np.asarray(bias)
+    if kernel.shape[-1] != 2 * old_actions or new_actions < old_actions:
+        raise ValueError(f"the policy's output has {kernel.shape[-1]} values, not 2 x {old_actions} actions")
+    extra = new_actions - old_actions
+    loc_k, scale_k = np.split(kernel, 2, axis=-1)
+    loc_b, scale_b = np.split(bias, 2)
+    zeros_k = np.zeros(kernel.shape[:-1] + (extra,), kernel.dtype)
+    kernel = np.concatenate([loc_k, zeros_k, scale_k, zeros_k], axis=-1)
+    new_b = np.full(extra, scale_b.mean(), bias.dtype)
+    bias = np.concatenate([loc_b, np.zeros(extra, bias.dtype), scale_b, new_b])
+    return kernel, bias
+
+
+def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template, actions=None):
     """(normaliser, policy, value) params of networks that read the observations `old` ({obs key:
     Spec}, brax's dictionary observation: "state" for the policy, "privileged_state" for the value
     network) -> the same params for networks that read `new`, restored into `template` (the new
-    networks' fresh params, networks.params_template). ValueError (row_sources) when `new` is not
-    `old` plus earlier ticks of its entries and pooled entries."""
+    networks' fresh params, networks.params_template). actions: (the source's action size, this
+    run's) when the policy gives more actions (output_columns; a tanh-normal policy). ValueError
+    (row_sources) when `new` is not `old` plus earlier ticks of its entries and pooled entries."""
     from flax import serialization
 
     if set(old) != {POLICY_OBS_KEY, VALUE_OBS_KEY} or set(new) != set(old):
@@ -150,18 +178,28 @@ def widen_params(params, old: dict[str, Spec], new: dict[str, Spec], template):
     for index, key in (("1", POLICY_OBS_KEY), ("2", VALUE_OBS_KEY)):
         first = state[index]["params"]["hidden_0"]
         first["kernel"] = first_layer_rows(first["kernel"], sources[key])
+    if actions is not None and actions[0] != actions[1]:
+        layers = state["1"]["params"]
+        last = layers[max(layers, key=lambda name: int(name.rpartition("_")[2]))]
+        last["kernel"], last["bias"] = output_columns(last["kernel"], last["bias"], *actions)
     return serialization.from_state_dict(template, state)
 
 
 # the env config keys a widening may change, with the value a config without the key has
-WIDENED_KEYS = {"obs_history": 1, "critic_scan_points": 0, "observe_servo_latency": False}
+WIDENED_KEYS = {
+    "obs_history": 1,
+    "critic_scan_points": 0,
+    "observe_servo_latency": False,
+    "gait_action": False,
+}
 
 
 def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
     """-> (params of checkpoint `ckpt` of run `source_run` for this run's networks, {key: the
     source's value} of the WIDENED_KEYS that differ when the networks were widened (else {})).
     env: this run's environment, env_cfg its config. ValueError when the checkpoint does not fit:
-    other networks, another observation, a shorter history, a ground scan removed or resized."""
+    other networks, another observation, a shorter history, a ground scan removed or resized, the
+    gait actions removed."""
     from quadson_mjx import compat
     from quadson_mjx.envs import make_env
     from quadson_mjx.training.checkpoints import load_checkpoint
@@ -187,4 +225,10 @@ def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
     new = {POLICY_OBS_KEY: env.obs_spec, VALUE_OBS_KEY: env.critic_spec}
     params = load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
     template = params_template(env.observation_size, env.action_size, ppo_cfg)
-    return widen_params(params, old, new, template), {k: int(v) for k, v in changed.items()}
+    actions = (src_env.action_size, env.action_size)
+    if actions[0] != actions[1] and ppo_cfg.policy_distribution != "tanh_normal":
+        raise ValueError(
+            f"more actions than the source's ({actions[0]} -> {actions[1]}) can only be added to a "
+            f"tanh_normal policy, not {ppo_cfg.policy_distribution}"
+        )
+    return widen_params(params, old, new, template, actions), {k: int(v) for k, v in changed.items()}
