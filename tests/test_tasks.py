@@ -201,6 +201,16 @@ COMMITTED_RUNS = {
     ),
     # and that fine-tuned with one contact a foot on the height field (hfield_contact)
     "results/tiles_dt2_hfc1_h200": ("QuadsonJoystickTiles", [*TILES_SWING_DT2, "hfield_foot_contacts=1"]),
+    # and that fine-tuned with the gait's two actions (step length and frequency scales), then 90M
+    # steps more
+    "results/tiles_ga_h200": (
+        "QuadsonJoystickTiles",
+        [*TILES_SWING_DT2, "hfield_foot_contacts=1", "gait_action=true"],
+    ),
+    "results/tiles_ga_more_h200": (
+        "QuadsonJoystickTiles",
+        [*TILES_SWING_DT2, "hfield_foot_contacts=1", "gait_action=true"],
+    ),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
