@@ -1,7 +1,8 @@
 """Sim-to-sim (quadson_mjx.sim2sim, sim2sim_plant, sim2sim_model): the servo and sensor models against
 hand-computed values, the plant's model against the robot's MJCF, and short closed loops on the CPU:
-the committed true_state policy exported to ONNX (MCAP written and read back) and a sensor-only
-policy (no velocity input) through the deploy loop.
+the committed true_state policy exported to ONNX (MCAP written and read back), a sensor-only
+policy (no velocity input), one that observes the servos' latency and one with the gait's two
+actions, through the deploy loop.
 """
 
 import json
@@ -177,15 +178,25 @@ def test_encoders_are_quantised_to_12_bits(robot, flat):
 
 class _SmallSensorPolicy:
     """A freshly initialised small MLP (obs -> 32 -> actions, tanh) over the sensor-only observation:
-    what an untrained export computes, without training."""
+    what an untrained export computes, without training. servo_latency: the observation ends with
+    the servos' measured latency (trained for 0-20 ms, 2 ms calibration error); the policy keeps the
+    observations it was given."""
 
-    def __init__(self):
+    def __init__(self, servo_latency=False):
         from quadson_mjx import deploy
 
         cfg = env_config(terrain="rough")
         cfg.unlock()
         cfg.observation, cfg.command_tracking = "sensors", True
-        self.meta = {"env_config": json.loads(to_json(cfg))}
+        cfg.observe_servo_latency = servo_latency
+        self.meta = {
+            "env_config": json.loads(to_json(cfg)),
+            "trained_sensor_model": {
+                "actuation_latency_s": [0.0, 0.02],
+                "sensor": {"servo_latency_error_s": 0.002},
+            },
+        }
+        self.seen = []
         c = deploy.LoopConfig.from_env_config(self.meta["env_config"], self.meta)
         self.obs_size, self.action_size = c.obs_size, c.action_size
         rng = np.random.default_rng(0)
@@ -193,7 +204,48 @@ class _SmallSensorPolicy:
         self.w2 = rng.normal(0, 0.05, (32, self.action_size)).astype(np.float32)
 
     def __call__(self, obs):
+        self.seen.append(np.asarray(obs))
         return np.tanh(np.tanh(obs @ self.w1) @ self.w2)
+
+
+def test_a_policy_observing_the_servo_latency_is_given_the_plants(robot):
+    """run_episode gives a policy that observes the servos' latency the plant's own (whole physics
+    steps: 14 ms is 7 steps of 2 ms), which it then observes every tick; a plant slower than the
+    policy was trained for (60 ms) is refused before the run, naming the trained range."""
+    policy = _SmallSensorPolicy(servo_latency=True)
+    adapter = S.LoopAdapter(policy, "true")
+    assert (
+        adapter.loop.needs_servo_latency
+        and adapter.loop.config.obs_spec.names[-1] == "servo_latency.measured"
+    )
+    plant = S.make_plant(robot, adapter.env_config, "flat", 0.014, seed=0, randomize=False, pushes=False)
+    assert plant.delay == 7
+    row = S.run_episode(adapter, plant, ((0.0, (0.2, 0.0, 0.0)),), 1.0, seed=0)
+    assert row["steps"] == 50 and adapter.loop.servo_latency_s == pytest.approx(0.014)
+    assert len(policy.seen) == 50 and all(o[-1] == np.float32(0.014) for o in policy.seen)
+    slow = S.make_plant(robot, adapter.env_config, "flat", 0.06, seed=0, randomize=False, pushes=False)
+    with pytest.raises(ValueError, match=r"trained for a measured latency in \[0, 0.022\] s"):
+        S.run_episode(
+            S.LoopAdapter(_SmallSensorPolicy(servo_latency=True), "true"),
+            slow,
+            ((0.0, (0.2, 0.0, 0.0)),),
+            1.0,
+        )
+
+
+def test_gait_action_policy_walks_through_its_deploy_loop(robot, tmp_path):
+    """The committed tiles policy fine-tuned with the gait's two actions (results/tiles_ga_more_h200),
+    exported to ONNX, in MuJoCo C through the deploy loop on flat ground at 0.3 m/s: 14 actions, the
+    last two scaling the gait; it does not fall and walks near the commanded speed."""
+    from quadson_mjx import export
+
+    path = export.export_run("results/tiles_ga_more_h200", tmp_path / "ga.onnx")
+    adapter = S.LoopAdapter(str(path), "true")
+    assert adapter.loop.config.gait_action and adapter.loop.config.action_size == 14
+    plant = S.make_plant(robot, adapter.env_config, "flat", 0.02, seed=0, randomize=False, pushes=False)
+    row = S.run_episode(adapter, plant, ((0.0, (0.3, 0.0, 0.0)),), 3.0, seed=0, imu_calibration_s=1.0)
+    assert row["steps"] == 150 and not row["fell"]
+    assert row["vx_mean"] > 0.25, row["vx_mean"]  # measured 0.292 m/s
 
 
 def test_sensor_only_policy_closed_loop_takes_no_velocity(robot):
