@@ -19,17 +19,22 @@ ROOT = Path(__file__).resolve().parents[1]
 SOURCE = ROOT / "results" / "tiles_swing_h200"  # a committed run: obs_history 1, asymmetric critic
 
 
+def _widen(override: str):
+    """The committed tiles policy's final checkpoint widened into a run with env `override` ->
+    (source env, this env, ppo config, source params, widened params, widened_from)."""
+    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
+    src_env = make_env(src_cfg)
+    env = make_env(apply_overrides(src_cfg, [override]))
+    ckpt, _ = training.latest_checkpoint(SOURCE)
+    params, widened_from = init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
+    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
+    return src_env, env, ppo_cfg, source, params, widened_from
+
+
 @pytest.fixture(scope="module")
 def widened():
     """The committed tiles policy's final checkpoint widened into a run of obs_history 3."""
-    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
-    src_env = make_env(src_cfg)
-    env_cfg = apply_overrides(src_cfg, ["obs_history=3"])
-    env = make_env(env_cfg)
-    ckpt, _ = training.latest_checkpoint(SOURCE)
-    params, widened_from = init_params_for(ckpt, SOURCE, env, env_cfg, ppo_cfg)
-    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
-    return src_env, env, ppo_cfg, source, params, widened_from
+    return _widen("obs_history=3")
 
 
 def _observations(src_env, env, rng):
@@ -126,13 +131,7 @@ def test_only_earlier_ticks_can_be_added():
 def scanned():
     """The committed tiles policy's final checkpoint widened into a run whose critic also sees a
     5 x 5 ground scan."""
-    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
-    src_env = make_env(src_cfg)
-    env = make_env(apply_overrides(src_cfg, ["critic_scan_points=5"]))
-    ckpt, _ = training.latest_checkpoint(SOURCE)
-    params, widened_from = init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
-    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
-    return src_env, env, ppo_cfg, source, params, widened_from
+    return _widen("critic_scan_points=5")
 
 
 def test_a_critic_scan_added_starts_where_the_source_was(scanned):
@@ -180,13 +179,7 @@ def test_a_critic_scan_added_starts_where_the_source_was(scanned):
 def latency_aware():
     """The committed tiles policy's final checkpoint widened into a run whose actor (and so its
     critic) also observes the servos' measured latency."""
-    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
-    src_env = make_env(src_cfg)
-    env = make_env(apply_overrides(src_cfg, ["observe_servo_latency=true"]))
-    ckpt, _ = training.latest_checkpoint(SOURCE)
-    params, widened_from = init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
-    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
-    return src_env, env, ppo_cfg, source, params, widened_from
+    return _widen("observe_servo_latency=true")
 
 
 def test_the_measured_servo_latency_starts_with_the_critics_latency_statistics(latency_aware):
@@ -216,12 +209,7 @@ def test_gait_actions_added_leave_the_gait_as_it_was():
     gait's step length and frequency scales) whose mode is 0 (scale 1) and whose exploration is the
     trained actions' mean; the source's 12 actions and its value unchanged, whatever the new
     last_action components read; those take the source's last_action statistics pooled."""
-    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
-    src_env = make_env(src_cfg)
-    env = make_env(apply_overrides(src_cfg, ["gait_action=true"]))
-    ckpt, _ = training.latest_checkpoint(SOURCE)
-    params, widened_from = init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
-    source = training.load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
+    src_env, env, ppo_cfg, source, params, widened_from = _widen("gait_action=true")
     assert widened_from == {"gait_action": 0} and (src_env.action_size, env.action_size) == (12, 14)
     assert env.obs_spec.size == src_env.obs_spec.size + 2
     assert env.critic_spec.size == src_env.critic_spec.size + 2
