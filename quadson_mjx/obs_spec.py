@@ -246,8 +246,9 @@ SERVO_LATENCY = entry(
     ("measured",),
     "s",
     "calibration",
-    "the servos' actuation latency, measured on the robot (deploy_servo.measure_latency); in "
-    "training the episode's latency with the calibration's error (env sensor.servo_latency_error_s)",
+    "the servos' actuation latency, measured on the robot before it walks (the deploy loop's "
+    "servo_latency_s); in training the episode's latency with the calibration's error "
+    "(env sensor.servo_latency_error_s)",
 )
 
 
