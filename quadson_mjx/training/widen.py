@@ -1,20 +1,22 @@
-"""Fine-tuning a policy whose observation has grown since it was trained (--init-from a run of
-env.obs_history=1 into a run of obs_history=3, or a critic without a ground scan into one with
-env.critic_scan_points=n).
+"""Fine-tuning a policy whose observation or action has grown since it was trained (--init-from a
+run of env.obs_history=1 into a run of obs_history=3, a critic without a ground scan into one with
+env.critic_scan_points=n, an actor into one that observes the servos' measured latency
+(env.observe_servo_latency), or a policy into one with the gait's two actions (env.gait_action)).
 
 The new observation holds every entry of the old one plus earlier ticks of some of them
-("gyro@-1", obs_spec.lagged), the servos' measured latency (env.observe_servo_latency) and, for the
-critic, the ground scan. The widened networks read the
-old entries with their trained weights and the new ones with zero weights, so at the start of the
+("gyro@-1", obs_spec.lagged), the servos' measured latency, the last action's two new components
+(GROWN_WITH_ACTIONS) and, for the critic, the ground scan. The widened networks read the old
+entries with their trained weights and the new ones with zero weights, so at the start of the
 fine-tune they compute exactly what the source's did. The observation normaliser gives each
-earlier tick the statistics of its current tick (the same signal a tick later), and each cell of
-the ground scan the statistics of the source's ground under the four feet pooled (POOLED_FROM: the
-same quantity, the ground at a point less the ground under the base, at points near the base),
-and the measured servo latency the statistics of the source critic's actuation latency (FROM_CRITIC:
-the same value with a calibration's error).
-Any other difference between the observations (an entry dropped, renamed, resized, or new and
-neither of those) is refused: a weight of zero would not be a neutral start for it, and its
-normaliser statistics would be made up.
+earlier tick the statistics of its current tick (the same signal a tick later), each cell of the
+ground scan the statistics of the source's ground under the four feet pooled (POOLED_FROM: the
+same quantity, the ground at a point less the ground under the base, at points near the base), the
+measured servo latency the statistics of the source critic's actuation latency (FROM_CRITIC: the
+same value with a calibration's error), and the new action components the old ones' pooled. New
+actions get zero weights and a zero mean, so their mode (0) leaves the gait as it was
+(output_columns). Any other difference between the observations (an entry dropped, renamed,
+resized, or new and neither of those) is refused: a weight of zero would not be a neutral start
+for it, and its normaliser statistics would be made up.
 """
 
 from __future__ import annotations
