@@ -13,7 +13,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from quadson_mjx import obs_spec, training
 from quadson_mjx.config import apply_overrides
 from quadson_mjx.envs import make_env
-from quadson_mjx.training.widen import init_params_for, row_sources, widen_params
+from quadson_mjx.training.widen import init_params_for, output_columns, row_sources, widen_params
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCE = ROOT / "results" / "tiles_swing_h200"  # a committed run: obs_history 1, asymmetric critic
@@ -252,6 +252,25 @@ def test_gait_actions_added_leave_the_gait_as_it_was():
     assert not np.any(
         np.asarray(params[1]["params"]["hidden_0"]["kernel"])[rows_new.start + 12 : rows_new.stop]
     )
+
+
+def test_output_columns_by_hand_and_refusals():
+    """Two actions with [loc, scale] columns (a, b | c, d) grown to three: (a, b, 0 | c, d, 0), loc
+    bias 0 and scale bias the mean of the trained ones; an output that is not 2 x the action count,
+    or fewer actions than the source's, is refused. A gait_normal policy cannot gain actions."""
+    kernel = np.array([[1.0, 2.0, 3.0, 4.0]])
+    k, b = output_columns(kernel, np.array([0.1, 0.2, -1.0, -3.0]), 2, 3)
+    np.testing.assert_array_equal(k, [[1.0, 2.0, 0.0, 3.0, 4.0, 0.0]])
+    np.testing.assert_allclose(b, [0.1, 0.2, 0.0, -1.0, -3.0, -2.0])
+    for old, new in ((3, 4), (2, 1)):
+        with pytest.raises(ValueError, match="the policy's output has 4 values"):
+            output_columns(kernel, np.zeros(4), old, new)
+    src_cfg, ppo_cfg = training.load_run_config(SOURCE)
+    ppo_cfg = apply_overrides(ppo_cfg, ["policy_distribution=gait_normal"])
+    env = make_env(apply_overrides(src_cfg, ["gait_action=true"]))
+    ckpt, _ = training.latest_checkpoint(SOURCE)
+    with pytest.raises(ValueError, match="can only be added to a tanh_normal policy, not gait_normal"):
+        init_params_for(ckpt, SOURCE, env, env.config, ppo_cfg)
 
 
 def test_a_scan_cannot_be_resized_or_dropped():

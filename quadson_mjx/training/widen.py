@@ -225,12 +225,12 @@ def init_params_for(ckpt, source_run, env, env_cfg, ppo_cfg):
         )
     old = {POLICY_OBS_KEY: src_env.obs_spec, VALUE_OBS_KEY: src_env.critic_spec}
     new = {POLICY_OBS_KEY: env.obs_spec, VALUE_OBS_KEY: env.critic_spec}
-    params = load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
-    template = params_template(env.observation_size, env.action_size, ppo_cfg)
     actions = (src_env.action_size, env.action_size)
     if actions[0] != actions[1] and ppo_cfg.policy_distribution != "tanh_normal":
         raise ValueError(
             f"more actions than the source's ({actions[0]} -> {actions[1]}) can only be added to a "
             f"tanh_normal policy, not {ppo_cfg.policy_distribution}"
         )
+    params = load_checkpoint(ckpt, src_env.observation_size, src_env.action_size, ppo_cfg)
+    template = params_template(env.observation_size, env.action_size, ppo_cfg)
     return widen_params(params, old, new, template, actions), {k: int(v) for k, v in changed.items()}
