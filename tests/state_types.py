@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from brax.envs.wrappers.training import EvalWrapper
 
 
 def leaf_types(tree) -> dict:
@@ -26,3 +27,11 @@ def assert_step_keeps_state_types(reset, step, reset_arg, action_size: int, batc
     assert a.keys() == b.keys(), sorted(set(a) ^ set(b))
     changed = {k: (a[k], b[k]) for k in a if a[k] != b[k]}
     assert not changed, f"leaves whose type the step changes (reset -> step): {changed}"
+
+
+def assert_evaluation_compiles_once(wrapped, action_size: int, batch: int) -> None:
+    """brax's evaluation of `wrapped` (an env in its training wrappers, `batch` environments):
+    its step keeps the reset state's leaf types (assert_step_keeps_state_types)."""
+    evaluated = EvalWrapper(wrapped)
+    keys = jax.ShapeDtypeStruct((batch, 2), jnp.uint32)
+    assert_step_keeps_state_types(evaluated.reset, evaluated.step, keys, action_size, (batch,))

@@ -14,8 +14,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-from brax.envs.wrappers.training import EvalWrapper
-from state_types import assert_step_keeps_state_types
+from state_types import assert_evaluation_compiles_once
 
 from quadson_mjx import obs_spec
 from quadson_mjx.config import apply_overrides
@@ -205,9 +204,7 @@ def test_a_step_keeps_the_state_types_so_the_evaluation_compiles_once(getup):
     """Regression: the reset's success_s was weakly typed and the step's not, so brax's evaluation
     of the get-up task compiled twice."""
     env = getup[0]
-    evaluated = EvalWrapper(wrap_for_training(env, 10))
-    keys = jax.ShapeDtypeStruct((2, 2), jnp.uint32)
-    assert_step_keeps_state_types(evaluated.reset, evaluated.step, keys, env.action_size, (2,))
+    assert_evaluation_compiles_once(wrap_for_training(env, 10), env.action_size, 2)
 
 
 def test_actor_sees_the_robots_sensors_and_the_critic_more(getup):

@@ -39,7 +39,7 @@ def widened():
 
 def _observations(src_env, env, rng):
     """A batch of the source's observations (random values), and this run's: the same entries
-    with random values in the earlier ticks."""
+    (an entry grown by actions: in its first values) with random values in the new ones."""
     old, new = {}, {}
     for key, s_old, s_new in (
         ("state", src_env.obs_spec, env.obs_spec),
@@ -47,9 +47,9 @@ def _observations(src_env, env, rng):
     ):
         x_old = rng.normal(size=(16, s_old.size)).astype(np.float32)
         x_new = rng.normal(size=(16, s_new.size)).astype(np.float32)
-        for name, rows in s_new.slices().items():
-            if name in s_old.slices():
-                x_new[:, rows] = x_old[:, s_old.slices()[name]]
+        for name, rows in s_old.slices().items():  # an entry grown by actions: its first values
+            start = s_new.slices()[name].start
+            x_new[:, start : start + rows.stop - rows.start] = x_old[:, rows]
         old[key], new[key] = x_old, x_new
     return old, new
 
@@ -213,19 +213,7 @@ def test_gait_actions_added_leave_the_gait_as_it_was():
     assert widened_from == {"gait_action": 0} and (src_env.action_size, env.action_size) == (12, 14)
     assert env.obs_spec.size == src_env.obs_spec.size + 2
     assert env.critic_spec.size == src_env.critic_spec.size + 2
-    rng = np.random.default_rng(1)
-    old_obs, new_obs = {}, {}
-    for key, s_old, s_new in (
-        ("state", src_env.obs_spec, env.obs_spec),
-        ("privileged_state", src_env.critic_spec, env.critic_spec),
-    ):
-        x_old = rng.normal(size=(16, s_old.size)).astype(np.float32)
-        x_new = rng.normal(size=(16, s_new.size)).astype(np.float32)  # a12, a13 random
-        for name, rows in s_old.slices().items():
-            x_new[:, s_new.slices()[name].start : s_new.slices()[name].start + rows.stop - rows.start] = (
-                x_old[:, rows]
-            )
-        old_obs[key], new_obs[key] = x_old, x_new
+    old_obs, new_obs = _observations(src_env, env, np.random.default_rng(1))  # a12, a13 random
     nets_old = training.make_networks(src_env.observation_size, src_env.action_size, ppo_cfg)
     nets_new = training.make_networks(env.observation_size, env.action_size, ppo_cfg)
     key = jax.random.PRNGKey(0)
