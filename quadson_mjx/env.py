@@ -118,6 +118,7 @@ class LocomotionEnv(Env):
         self._n_substeps = n_sub
         self._action_spec = obs_spec.locomotion_action(robot.legs, cfg.gait_action, cfg.action_scale_m)
         self._sensor_obs = cfg.observation == "sensors"
+        self._vel_ema = cfg.reward.weights.lin_vel_ema_error != 0.0  # info["vel_ema"] kept only then
         if self._sensor_obs:
             self._obs_spec = obs_spec.sensor_observation(
                 robot.legs,
@@ -205,7 +206,8 @@ class LocomotionEnv(Env):
     def restart_info(self) -> tuple[str, ...]:
         """The info entries that restart from the first state when an episode ends."""
         sensor = self.SENSOR_RESTART_INFO if self._sensor_obs else ()
-        return self.RESTART_INFO + sensor + (("yaw_error",) if self._config.yaw_error_tau_s else ())
+        ema = ("vel_ema",) if self._vel_ema else ()
+        return self.RESTART_INFO + sensor + (("yaw_error",) if self._config.yaw_error_tau_s else ()) + ema
 
     def actor_obs(self, obs):
         """The actor's part of an observation (obs itself unless it is a dictionary)."""
@@ -393,6 +395,8 @@ class LocomotionEnv(Env):
             info["obs_history"] = None
         if self._config.yaw_error_tau_s:
             info["yaw_error"] = jnp.zeros(1)  # the leaky integral starts at 0 (sensors.sensor_step)
+        if self._vel_ema:
+            info["vel_ema"] = jnp.zeros(2)  # lin_vel_ema_error's average, from standing [m/s]
         obs, info = self._observe(data, info, None, (data.qpos, data.qvel), jnp.zeros(4, bool))
         return State(data, obs, jnp.zeros(()), jnp.zeros(()), metrics, info)
 
@@ -427,6 +431,10 @@ class LocomotionEnv(Env):
         )
         if term.base_below_terrain:
             fallen = fallen | below
+        if self._vel_ema:
+            info["vel_ema"] = rewards.velocity_ema_step(
+                info["vel_ema"], lin_vel, self._ctrl_dt, cfg.reward.velocity_ema_s
+            )
         terms = self._get_reward(
             data, action, info, rpy, lin_vel, ang_vel, height, contact, stance_near, fallen
         )
@@ -672,4 +680,5 @@ class LocomotionEnv(Env):
             stance=stance_near[1],
             stance_near=stance_near,
             fallen=fallen,
+            vel_ema=info.get("vel_ema"),
         )

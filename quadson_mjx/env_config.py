@@ -66,6 +66,8 @@ ENV_KEYS_ADDED = {
     "reward.weights.yaw_rate_error_l2": 0.0,
     "reward.weights.swing_touch": 0.0,
     "reward.weights.stance_lift": 0.0,
+    "reward.weights.lin_vel_ema_error": 0.0,
+    "reward.velocity_ema_s": 0.5,
     "reward.target_gait_speed": False,
     "gait_scale.cycle_s": 1.0,
     "gait_scale.step_length_m": 1.0,
@@ -402,6 +404,7 @@ ENV_RULES: dict[str, Rule] = {
     "reward.target_gait_speed": Rule("bool"),
     "reward.forward_sigma": Rule("number", 0.0, 10.0, "m/s (a kernel width)", lo_open=True),
     "reward.tracking_sigma": Rule("number", 0.0, 10.0, "(a kernel width)", lo_open=True),
+    "reward.velocity_ema_s": Rule("number", 0.0, 60.0, _S, lo_open=True),  # and >= ctrl_dt
     "reward.orientation_coeffs": Rule("vector", 0.0, 1e4),
     "reward.height_target": Rule("number", 0.0, 2.0, _M, lo_open=True),
     "noise.rpy": Rule("number", 0.0, 0.5, _RAD),
@@ -523,6 +526,12 @@ def check_env_config(cfg) -> None:
         )
     _number(
         "episode_length_s", cfg.episode_length_s, lambda v: v >= cfg.ctrl_dt, f">= ctrl_dt ({cfg.ctrl_dt} s)"
+    )
+    _number(
+        "reward.velocity_ema_s",
+        cfg.reward.get("velocity_ema_s", 0.5),
+        lambda v: v >= cfg.ctrl_dt,
+        f">= ctrl_dt ({cfg.ctrl_dt} s)",
     )
     try:
         env_gait(cfg)

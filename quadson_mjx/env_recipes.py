@@ -28,6 +28,9 @@ def reward_config(height_target: float, command_tracking: bool = False) -> ml_co
         "lin_vel_tracking_exp": 1.0 if command_tracking else 0.0,
         "ang_vel_tracking_exp": 0.5 if command_tracking else 0.0,
         "yaw_rate_error_l2": 0.0,  # the yaw-rate error squared, unbounded (off in every preset)
+        # the planar velocity's error averaged over reward.velocity_ema_s, unsquared [m/s]: pays for a
+        # steady speed deficit in proportion (off in every preset, a fine-tuning option)
+        "lin_vel_ema_error": 0.0,
         # the joystick recipe's stability terms (env_config(joystick=True)); off otherwise
         "lin_vel_z_l2": 0.0,
         "ang_vel_xy_l2": 0.0,
@@ -59,6 +62,7 @@ def reward_config(height_target: float, command_tracking: bool = False) -> ml_co
             # the 0.5 m/s target worth reaching; set 1.0 for the seed's exact reward.
             "forward_sigma": 0.25,
             "tracking_sigma": 0.25,  # m/s and rad/s, for the command-tracking kernels
+            "velocity_ema_s": 0.5,  # s, the time constant of lin_vel_ema_error's average (a gait cycle)
             "orientation_coeffs": (40.0, 30.0, 0.0 if command_tracking else 5.0),  # roll, pitch, yaw
             "height_target": height_target,  # m (Quadson: seed 000's 0.2 m)
         }

@@ -77,6 +77,20 @@ def yaw_rate_error_l2(ang_vel, command):
     return jnp.square(ang_vel[..., 2] - command[..., 2])
 
 
+def velocity_ema_step(vel_ema, lin_vel, dt, tau):
+    """One control step of the planar velocity's exponential moving average: vel_ema (..., 2) ->
+    vel_ema + (lin_vel[..., :2] - vel_ema) * dt / tau [m/s] (dt <= tau, checked in the config)."""
+    return vel_ema + (lin_vel[..., :2] - vel_ema) * (dt / tau)
+
+
+def lin_vel_ema_error(vel_ema, command):
+    """|v_ema - command| [m/s], the planar norm: the error of the velocity averaged over about a gait
+    cycle (vel_ema (..., 2), velocity_ema_step), with the gait's own oscillation filtered out. A
+    steady speed deficit costs in proportion to its size, where lin_vel_tracking_exp's kernel,
+    averaged over the step-to-step oscillation, charges it only to second order -> (...,)."""
+    return jnp.linalg.norm(vel_ema - command[..., :2], axis=-1)
+
+
 def lin_vel_z_l2(lin_vel):
     """vz^2 [m^2/s^2] (the joystick recipe's vertical penalty, MuJoCo Playground Go1) -> (...,)."""
     return jnp.square(lin_vel[..., 2])
@@ -137,13 +151,15 @@ def locomotion_terms(
     stance,
     stance_near,
     fallen,
+    vel_ema=None,
 ) -> dict:
     """Every term of the locomotion environment, unweighted, by name (the config's reward.weights
     keys). r: the env config's `reward` group; forward_target [m/s]; body-frame velocities (3,);
     rpy (3,) [rad]; height above the ground under the base [m]; command (3,); contact, stance (4,)
     bool: feet on the ground and the phase table's stance legs; stance_near (3, 4) bool: the table's
     stance one control step before, at and after this one; fallen () bool: the episode ends by a
-    fall on this step (tilt, height, base in the ground), the one step the termination term pays."""
+    fall on this step (tilt, height, base in the ground), the one step the termination term pays;
+    vel_ema (2,): the planar velocity's moving average [m/s] (None: lin_vel_ema_error is 0, off)."""
     return {
         "forward_velocity_exp": forward_velocity_exp(lin_vel, forward_target, r.forward_sigma),
         "lateral_l2": lateral_l2(lin_vel, ang_vel),
@@ -155,6 +171,7 @@ def locomotion_terms(
         "lin_vel_tracking_exp": lin_vel_tracking_exp(lin_vel, command, r.tracking_sigma),
         "ang_vel_tracking_exp": ang_vel_tracking_exp(ang_vel, command, r.tracking_sigma),
         "yaw_rate_error_l2": yaw_rate_error_l2(ang_vel, command),
+        "lin_vel_ema_error": jnp.zeros(()) if vel_ema is None else lin_vel_ema_error(vel_ema, command),
         "lin_vel_z_l2": lin_vel_z_l2(lin_vel),
         "ang_vel_xy_l2": ang_vel_xy_l2(ang_vel),
         "contact_phase": contact_phase(contact, stance),

@@ -22,11 +22,16 @@ from quadson_mjx.quat import quat_rotate_inverse, quat_to_rpy
 from quadson_mjx.wrappers import wrap_for_training
 
 TERMINATION = -10.0
+EMA_WEIGHT = -0.7  # lin_vel_ema_error, off in the presets: on here so that one compile tests it
 
 
 @pytest.fixture(scope="module")
 def env():
-    return LocomotionEnv(apply_overrides(env_config(), [f"reward.weights.termination={TERMINATION}"]))
+    overrides = [
+        f"reward.weights.termination={TERMINATION}",
+        f"reward.weights.lin_vel_ema_error={EMA_WEIGHT}",
+    ]
+    return LocomotionEnv(apply_overrides(env_config(), overrides))
 
 
 @pytest.fixture(scope="module")
@@ -128,6 +133,41 @@ def test_reward_terms_by_hand(env, fns):
     assert (w.forward_velocity_exp, w.lateral_l2, w.vertical_l2, w.orientation_l2) == (1.0, -0.8, -0.8, -1.0)
     assert w.lin_vel_tracking_exp == 0.0 and w.ang_vel_tracking_exp == 0.0 and w.yaw_rate_error_l2 == 0.0
     assert w.swing_touch == 0.0 and w.stance_lift == 0.0
+
+
+def test_velocity_average_term_by_hand(env, fns):
+    """lin_vel_ema_error: the planar velocity's moving average, from 0 at the reset, one step of
+    v dt / tau per control step, and its distance to the command, against values computed here from
+    the state's own base velocity (body frame) and command."""
+    reset, step = fns
+    s0 = reset(jax.random.PRNGKey(3))
+    assert "vel_ema" in env.restart_info and np.all(np.asarray(s0.info["vel_ema"]) == 0.0)
+    tau, dt = env.config.reward.velocity_ema_s, env.ctrl_dt
+    assert (tau, dt) == (0.5, 0.02)
+    s, ema = s0, np.zeros(2)
+    for _ in range(3):
+        s = step(s, jnp.full(12, 0.3))
+        qpos, qvel = np.asarray(s.pipeline_state.qpos), np.asarray(s.pipeline_state.qvel)
+        v = np.asarray(quat_rotate_inverse(jnp.asarray(qpos[3:7]), jnp.asarray(qvel[:3])))
+        ema = ema + (v[:2] - ema) * dt / tau
+        np.testing.assert_allclose(np.asarray(s.info["vel_ema"]), ema, rtol=1e-5, atol=1e-7)
+        want = EMA_WEIGHT * np.linalg.norm(ema - np.asarray(s.info["command"])[:2])
+        assert float(s.metrics["reward/lin_vel_ema_error"]) == pytest.approx(want, rel=1e-5, abs=1e-7)
+    assert np.any(np.abs(ema) > 1e-4)  # the base moved: the check above was not of zeros
+    # off (the presets): no average is kept and the term is 0
+    off = LocomotionEnv(env_config())
+    assert "vel_ema" not in off.restart_info and off.config.reward.weights.lin_vel_ema_error == 0.0
+    terms = rewards.locomotion_terms(
+        off.config.reward, 0.5, lin_vel=jnp.ones(3), ang_vel=jnp.ones(3), rpy=jnp.zeros(3), height=0.2,
+        action=jnp.zeros(12), last_action=jnp.zeros(12), actuator_force=jnp.zeros(12),
+        command=jnp.zeros(3), contact=jnp.ones(4, bool), stance=jnp.ones(4, bool),
+        stance_near=jnp.ones((3, 4), bool), fallen=False,
+    )  # fmt: skip
+    assert float(terms["lin_vel_ema_error"]) == 0.0
+    # a hand case: average (0.3, -0.4) against command (0, 0, 1): |(0.3, -0.4)| = 0.5
+    assert float(
+        rewards.lin_vel_ema_error(jnp.array([0.3, -0.4]), jnp.array([0.0, 0.0, 1.0]))
+    ) == pytest.approx(0.5)
 
 
 def test_step_reward_is_the_weighted_sum_of_logged_terms(fns):
