@@ -1,9 +1,10 @@
 """How far short of the success line a tiles policy's failures end: each robot's share of the
 commanded distance (success: >= 0.8 and no fall), sorted, per tile. The tiles evaluation's trial
 (tiles_eval.run_trials: randomized, pushed, 0.3 m/s forward for 3 s) at the 2 ms step with the
-calibrated IMU's mounting range, 64 robots a tile, on the CPU.
+calibrated IMU's mounting range, 64 robots a tile, on the CPU; KEY=VALUE: env overrides on top
+(e.g. gait_scale.step_length_m=1.15: the gait's stride longer than the policy trained with).
 
-    python results/tiles_ga_more_h200/comparison/ema/distance_shares.py RUN
+    python results/tiles_ga_more_h200/comparison/ema/distance_shares.py RUN [KEY=VALUE ...]
 """
 
 import sys
@@ -20,9 +21,9 @@ TILES = [("stairs_up", 7), ("stairs_up", 6), ("flat", 6), ("slope_up", 7)]
 ROBOTS, STEPS = 64, 150
 
 
-def main(run: str) -> None:
+def main(run: str, overrides: list[str]) -> None:
     policy, env_cfg, _, _ = load_policy(Path(run))
-    cfg = tiles_env_config(apply_overrides(env_cfg, ["sensor.imu_tilt_rad=0.01", "sim_dt=0.002"]))
+    cfg = tiles_env_config(apply_overrides(env_cfg, ["sensor.imu_tilt_rad=0.01", "sim_dt=0.002", *overrides]))
     env = LocomotionEnv(cfg)
     types = list(env.tiles.types)
     type_idx = np.repeat([types.index(t) for t, _ in TILES], ROBOTS)
@@ -30,7 +31,9 @@ def main(run: str) -> None:
     out = run_trials(env, cfg, policy, type_idx, level_idx, (0.3, 0.0, 0.0), STEPS, 0)
     share = np.asarray(out["progress"]) / (0.3 * STEPS * env.ctrl_dt)
     fell = np.asarray(out["fell"])
-    print(f"{run}: share of the commanded 0.9 m per robot, sorted; success = share >= 0.8 and no fall")
+    print(
+        f"{' '.join([run, *overrides])}: share of the commanded 0.9 m per robot, sorted; success = share >= 0.8 and no fall"
+    )
     for k, (kind, level) in enumerate(TILES):
         s = slice(k * ROBOTS, (k + 1) * ROBOTS)
         ok = (share[s] >= 0.8) & ~fell[s]
@@ -41,4 +44,4 @@ def main(run: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(sys.argv[1], sys.argv[2:])
