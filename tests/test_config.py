@@ -115,6 +115,9 @@ def test_network_sizes_take_any_depth():
         ("yaw_error_tau_s=1", "env.yaw_error_tau_s > 0 needs env.observation=sensors"),
         ("observe_servo_latency=true", "env.observe_servo_latency needs env.observation=sensors"),
         ("sensor.servo_latency_error_s=-0.001", "env.sensor.servo_latency_error_s"),
+        ("reward.velocity_ema_s=0", "env.reward.velocity_ema_s"),
+        # the moving average takes dt / tau of each control step's velocity: at most all of it
+        ("reward.velocity_ema_s=0.01", "env.reward.velocity_ema_s must be >= ctrl_dt"),
     ],
 )
 def test_env_config_values_out_of_range_are_errors_naming_the_key_regression(override, key):
