@@ -529,7 +529,7 @@ def check_env_config(cfg) -> None:
     )
     _number(
         "reward.velocity_ema_s",
-        cfg.reward.get("velocity_ema_s", 0.5),
+        cfg.reward.get("velocity_ema_s", ENV_KEYS_ADDED["reward.velocity_ema_s"]),
         lambda v: v >= cfg.ctrl_dt,
         f">= ctrl_dt ({cfg.ctrl_dt} s)",
     )
