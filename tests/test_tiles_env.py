@@ -282,6 +282,10 @@ def test_tiles_evaluation_of_the_gait_alone():
     spec = terrain_tiles.TerrainSpec()
     assert tiles_eval.difficulty(spec, "slope_down", 6) == {"slope_deg": pytest.approx(14.0)}
     assert tiles_eval.difficulty(spec, "stairs_up", 7) == {"step_m": pytest.approx(0.032)}
+    # eight levels (--env.tiles.levels=8): level 5 is the issue's 15 degrees and 3 cm
+    eight = terrain_tiles.TerrainSpec(levels=8)
+    assert tiles_eval.difficulty(eight, "slope_up", 5) == {"slope_deg": pytest.approx(15.0)}
+    assert tiles_eval.difficulty(eight, "stairs_down", 5) == {"step_m": pytest.approx(0.03)}
 
 
 @pytest.mark.parametrize(
@@ -297,6 +301,10 @@ def test_tiles_evaluation_of_the_gait_alone():
         ["--run", "results/policy_h100_sensors", "--env.sensor.imu_tilt=0.01"],
         ["--run", "results/policy_h100_sensors", "--env.sensor.imu_tilt_rad=-1"],
         ["--run", "results/policy_h100_sensors", "--sensor.imu_tilt_rad=0.01"],
+        # the tiled ground's levels are a condition, its other keys are the run's
+        ["--run", "results/tiles_h100", "--env.tiles.levels=0"],
+        ["--run", "results/tiles_h100", "--env.tiles.levels=8", "--levels", "8"],
+        ["--run", "results/tiles_h100", "--env.tiles.tile_m=3"],
     ],
 )
 def test_tiles_eval_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
@@ -311,8 +319,9 @@ def test_tiles_eval_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
 
 
 def test_tiles_eval_cli_env_overrides_reach_the_trials(capsys, monkeypatch, tmp_path):
-    """--env.sensor.imu_tilt_rad=0.01 (a calibrated IMU) reaches evaluate_tiles's env config, the
-    rest of the run's config unchanged, and the JSON keeps the command line."""
+    """--env.sensor.imu_tilt_rad=0.01 (a calibrated IMU) and --env.tiles.levels=8 (the tiles at
+    eighths of their largest size) reach evaluate_tiles's env config, the rest of the run's config
+    unchanged, and the JSON keeps the command line."""
     import json
     from pathlib import Path
 
@@ -325,7 +334,7 @@ def test_tiles_eval_cli_env_overrides_reach_the_trials(capsys, monkeypatch, tmp_
     seen = {}
 
     def fake(env_cfg, policy, levels, *args, **kwargs):
-        seen["cfg"] = env_cfg
+        seen["cfg"], seen["levels"] = env_cfg, levels
         return []
 
     monkeypatch.setattr(tiles_eval, "evaluate_tiles", fake)
@@ -342,6 +351,18 @@ def test_tiles_eval_cli_env_overrides_reach_the_trials(capsys, monkeypatch, tmp_
     changed = {k for k in seen["cfg"].to_dict() if seen["cfg"][k] != run_cfg[k]}
     assert changed == {"sensor"}
     assert json.loads((tmp_path / "e.json").read_text())["argv"] == argv
+    # the tiled ground's levels: only tiles.levels changes, and the trials get the asked level
+    argv = ["--run", "results/tiles_h100", "--env.tiles.levels=8", "--levels", "5"]
+    assert cli.main(argv) == 0
+    run_cfg, _ = load_run_config(root / "results/tiles_h100")
+    assert run_cfg.tiles.levels == 10 and seen["cfg"].tiles.levels == 8 and seen["levels"] == [5]
+    changed = {k for k in seen["cfg"].to_dict() if seen["cfg"][k] != run_cfg[k]}
+    assert changed == {"tiles"}
+    assert {k for k in run_cfg.tiles if seen["cfg"].tiles[k] != run_cfg.tiles[k]} == {"levels"}
+    # fewer levels than the run's robots started at (0-4): the start levels, training's only, come down
+    assert cli.main(["--run", "results/tiles_h100", "--env.tiles.levels=4", "--levels", "2"]) == 0
+    assert seen["cfg"].tiles.levels == 4 and seen["levels"] == [2]
+    assert (seen["cfg"].tiles.min_init_level, seen["cfg"].tiles.max_init_level) == (0, 3)
 
 
 def test_foxglove_draws_the_default_tiled_ground_decimated():

@@ -1,10 +1,12 @@
 """An evaluation's conditions on the command line: `--env.KEY=VALUE` for the keys of the env config
 that set the world a trained policy is evaluated in (CONDITION_KEYS: the sensor model, noise, the
 randomization ranges, pushes, the MJX implementation, the physics timestep, the feet's contacts on a
-height field), never what the policy
-observes or does (the policy still acts every ctrl_dt).
+height field, the tiled ground's number of levels), never what the policy observes or does (the
+policy still acts every ctrl_dt).
 Used by quadson-tiles-eval and quadson-policy-eval, e.g. `--env.sensor.imu_tilt_rad=0.01`: the
-IMU's mounting as a calibrated robot keeps it (deploy_imu) instead of within 2 degrees."""
+IMU's mounting as a calibrated robot keeps it (deploy_imu) instead of within 2 degrees;
+`--env.tiles.levels=8 --levels 5`: the tiles at 6/8 of their largest size (15 degrees, 3 cm steps)
+instead of the 7/10 and 8/10 of the run's ten levels."""
 
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ CONDITION_KEYS = (
     "impl",
     "sim_dt",
     "hfield_foot_contacts",
+    "tiles.levels",  # the rows of the tiled ground: level L of N is (L + 1) / N of each type's largest size
 )
 
 
@@ -42,12 +45,20 @@ def condition_overrides(rest: list[str]) -> list[str]:
 
 
 def conditions_config(env_cfg, overrides: list[str]):
-    """A run's env config with the evaluation's overrides, checked; UsageError naming the key."""
+    """A run's env config with the evaluation's overrides, checked; UsageError naming the key.
+    With fewer tile levels than the run's curriculum started its robots at, the start levels
+    (tiles.min_init_level, max_init_level: training's only; an evaluation puts each robot on its
+    tile) come down to the top level."""
     from quadson_mjx.config import apply_overrides
     from quadson_mjx.env_config import check_env_config, with_added_keys
 
     try:
         cfg = apply_overrides(with_added_keys(env_cfg), overrides, prefix="env.")
+        if any(o.split("=", 1)[0] == "tiles.levels" for o in overrides) and "tiles" in cfg:
+            top = cfg.tiles.levels - 1
+            for key in ("min_init_level", "max_init_level"):
+                if key in cfg.tiles and isinstance(top, int) and top >= 0:
+                    cfg.tiles[key] = min(cfg.tiles[key], top)
         check_env_config(cfg)
     except ValueError as e:
         raise UsageError(str(e)) from None
