@@ -17,7 +17,8 @@ the run. `summarize` pools runs per condition: the RMS over all their steps, fal
 runs.
 
 Terrains: "flat", "stones", or one tile of a tiles policy's training ground, "tiles:TYPE:LEVEL"
-(`tile_terrain`): the whole field of its env config, the run starting at that tile's centre (within
+(`tile_terrain`; "tiles:TYPE:LEVEL/N" on the field laid out in N levels): the whole field of its
+env config, the run starting at that tile's centre (within
 TILE_START_M) with a seeded heading. Every run also reports the distance it covered along its
 command (the body-frame velocity along the command, capped at the command's speed, summed over the
 whole run as the terrain curriculum sums it) against the distance commanded, and success: no fall

@@ -1,4 +1,4 @@
-"""Sim-to-sim on the tiled ground (quadson_mjx.sim2sim_tiles: "tiles:TYPE:LEVEL" terrains): the
+"""Sim-to-sim on the tiled ground (quadson_mjx.sim2sim_tiles: "tiles:TYPE:LEVEL[/N]" terrains): the
 plant's ground against the training model's (MuJoCo ray casts), the tile names and their refusals,
 the start on a tile, and a short closed loop of a committed tiles policy through the deploy loop
 whose distance and success are checked against MuJoCo's own base position.
@@ -67,6 +67,26 @@ def test_tile_names_and_their_refusals(tiles_config):
     # its own random stream per tile, fixed across machines (no Python hash)
     seeds = {S.plant_seed_of(0, 0, f"tiles:{t}:{lv}") for t in spec.types for lv in range(10)}
     assert len(seeds) == 80 and S.plant_seed_of(1, 2, "stones") == 1_000_003 + 2 * 7919 + 17
+    # "LEVEL/N": the same field laid out in N levels; level 5 of 8 is 6/8 of the largest sizes (20
+    # deg, 4 cm): the terrain issue's 15 deg and 3 cm; the run starts at that tile's centre
+    eight, kind, level = S.tile_terrain("tiles:stairs_up:5/8", tiles_config)
+    assert (kind, level, eight.levels) == ("stairs_up", 5, 8)
+    assert eight.max_step_m * eight.difficulty(5) == pytest.approx(0.03)
+    assert eight.max_slope_deg * eight.difficulty(5) == pytest.approx(15.0)
+    assert {f: getattr(eight, f) for f in ("types", "tile_m", "seed", "tread_m")} == {
+        f: getattr(spec, f) for f in ("types", "tile_m", "seed", "tread_m")
+    }
+    xy = S.start_xy("tiles:stairs_up:5/8", tiles_config, np.random.default_rng(0))
+    centre = tile_center(eight, eight.types.index("stairs_up"), 5)
+    assert np.abs(np.subtract(xy, centre)).max() <= S.TILE_START_M
+    # a field of fewer levels than the curriculum's start levels (0-4 in this run) is still a field
+    assert S.tile_terrain("tiles:slope_up:1/2", tiles_config)[0].levels == 2
+    for bad in ("tiles:stairs_up:8/8", "tiles:stairs_up:5/0", "tiles:stairs_up:5/x", "tiles:stairs_up:/8"):
+        with pytest.raises(ValueError, match="terrain"):
+            S.tile_terrain(bad, tiles_config)
+    # a stream of its own too, apart from the run's own levels' streams
+    eights = {S.plant_seed_of(0, 0, f"tiles:{t}:{lv}/8") for t in spec.types for lv in range(8)}
+    assert len(eights) == 64 and not eights & seeds
 
 
 def test_the_trial_is_the_mjx_tiles_evaluations():
@@ -177,6 +197,9 @@ def test_cli_tiles_bad_inputs_are_one_line_and_exit_status_2(exported, capsys, t
         [str(exported), "--tiles", "slope_up", "--levels", "12"],
         [str(exported), "--tiles", "slope_up", "--levels", "3", "--seconds", "4"],  # 1.2 m: off a 2 m tile
         [str(exported), "--commands", "tile", "--seconds", "0.5"],
+        [str(exported), "--tile-levels", "8"],  # no --tiles
+        [str(exported), "--tiles", "slope_up", "--levels", "8", "--tile-levels", "8"],
+        [str(exported), "--tiles", "slope_up", "--levels", "0", "--tile-levels", "0"],
     ]
     for argv in cases:
         assert main([*argv, "--out", str(tmp_path)]) == 2, argv

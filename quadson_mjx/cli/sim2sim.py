@@ -25,7 +25,9 @@ Check a file: python -m quadson_mjx.mcap_check FILE --rollout. Bad input: one li
 tile (type, level) of the policy's own training field, every run starting at the tile's centre
 and holding vx 0.3 m/s for --seconds (default 3; at most the walk to the tile's edge), the trial
 of the MJX tiles evaluation (quadson-tiles-eval); the table adds the share of runs that succeeded
-(no fall, >= 80 % of the commanded distance) and of the distance covered.
+(no fall, >= 80 % of the commanded distance) and of the distance covered. --tile-levels N lays the
+field out in N levels (level L is (L + 1) / N of each type's largest size), as quadson-tiles-eval's
+--env.tiles.levels=N.
 """
 
 from __future__ import annotations
@@ -64,6 +66,14 @@ def parse(argv):
         help="tile types of the policy's tiled ground (comma list or all)",
     )
     p.add_argument("--levels", type=int, nargs="+", default=None, help="with --tiles: the tiles' levels")
+    p.add_argument(
+        "--tile-levels",
+        type=int,
+        default=None,
+        metavar="N",
+        help="with --tiles: the policy's field laid out in N levels instead of its own (level L of N "
+        "is (L + 1) / N of each type's largest size: --tile-levels 8 --levels 5 is 15 deg and 3 cm)",
+    )
     p.add_argument(
         "--commands",
         default=None,
@@ -128,6 +138,10 @@ def parse(argv):
         )
     if (a.levels is not None) != tiles:
         raise UsageError("--tiles TYPES and --levels L ... go together")
+    if a.tile_levels is not None and not tiles:
+        raise UsageError("--tile-levels N lays out the tiled ground: it needs --tiles TYPES --levels L ...")
+    if a.tile_levels is not None and not 1 <= a.tile_levels <= 100:
+        raise UsageError(f"--tile-levels {a.tile_levels}: give 1 to 100 levels")
     a.terrain = a.terrain or "both"
     a.commands = a.commands or (S.TILE if tiles else "all")
     a.seconds = a.seconds if a.seconds is not None else (3.0 if tiles else 20.0)
@@ -171,14 +185,16 @@ def parse(argv):
 
 
 def tile_terrains(a, env_config: dict, path) -> tuple[str, ...]:
-    """--tiles TYPES --levels L ... -> ("tiles:TYPE:LEVEL", ...) on the policy's own field, its
-    --seconds of the tile trial inside the tile; UsageError otherwise."""
+    """--tiles TYPES --levels L ... -> ("tiles:TYPE:LEVEL", ...) on the policy's own field (with
+    --tile-levels N: "tiles:TYPE:LEVEL/N", the field laid out in N levels), its --seconds of the
+    tile trial inside the tile; UsageError otherwise."""
     try:
-        spec = S.tile_field(env_config)
+        spec = S.tile_field(env_config, a.tile_levels)
     except ValueError as e:
         raise UsageError(f"--tiles: policy {path}: {e}") from None
     types = spec.types if a.tiles == "all" else tuple(t.strip() for t in a.tiles.split(","))
-    terrains = tuple(f"{S.TILE_PREFIX}{t}:{lv}" for t in types for lv in a.levels)
+    of = "" if a.tile_levels is None else f"/{a.tile_levels}"
+    terrains = tuple(f"{S.TILE_PREFIX}{t}:{lv}{of}" for t in types for lv in a.levels)
     for t in terrains:
         try:
             S.tile_terrain(t, env_config)
