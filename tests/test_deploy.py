@@ -126,14 +126,16 @@ def test_committed_gait_policies_loop_targets_equal_their_envs(name):
     assert_loop_targets_match_env(env, loop, loop.gait_command)
 
 
-@pytest.mark.parametrize("name", ["policy_h200_sensors_c048", "tiles_swing_h200"])
+@pytest.mark.parametrize("name", ["policy_h200_sensors_c048", "tiles_stride115_h200"])
 def test_scaled_gait_joystick_runs_loop_targets_equal_their_envs(name):
-    # joystick runs on a scaled trot (a 0.48 s cycle; a 7 cm swing): the loop reads the scale from
-    # the run's config as the env does, at a command of the sweep's range
+    # joystick runs on a scaled trot (a 0.48 s cycle; a 7 cm swing and a stride 15 % longer, with
+    # the gait's two actions): the loop reads the scale from the run's config as the env does, at a
+    # command of the sweep's range
     from quadson_mjx import training
 
     cfg, _ = training.load_run_config(ROOT / "results" / name)
-    assert cfg.command_tracking and (cfg.gait_scale.cycle_s, cfg.gait_scale.step_height_m) != (1.0, 1.0)
+    scale = (cfg.gait_scale.cycle_s, cfg.gait_scale.step_height_m, cfg.gait_scale.step_length_m)
+    assert cfg.command_tracking and scale != (1.0, 1.0, 1.0)
     env = LocomotionEnv(cfg)
     loop = deploy.DeployLoop(_FixedPolicy(cfg, env.obs_spec.size, env.action_size))
     assert_loop_targets_match_env(env, loop, np.array([0.4, -0.1, 0.5]))

@@ -211,6 +211,11 @@ COMMITTED_RUNS = {
         "QuadsonJoystickTiles",
         [*TILES_SWING_DT2, "hfield_foot_contacts=1", "gait_action=true"],
     ),
+    # and that fine-tuned with the gait's stride 15 % longer
+    "results/tiles_stride115_h200": (
+        "QuadsonJoystickTiles",
+        [*TILES_SWING_DT2, "hfield_foot_contacts=1", "gait_action=true", "gait_scale.step_length_m=1.15"],
+    ),
     # trained before the toppled starts
     "results/getup_h100": ("QuadsonGetupFlat", ["getup.topple_prob=0.0"]),
     "results/getup_topple_h100": ("QuadsonGetupFlat", []),
