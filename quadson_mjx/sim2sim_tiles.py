@@ -31,10 +31,9 @@ def tile_field(env_config: dict, levels: int | None = None):
 
     tiles = dict(env_config["tiles"])
     if levels is not None:
-        tiles["levels"] = levels
-        for key in ("min_init_level", "max_init_level"):
-            if key in tiles:
-                tiles[key] = min(tiles[key], max(levels - 1, 0))
+        if levels < 1:
+            raise ValueError(f"a field of {levels} levels: give at least 1")
+        tiles.update(terrain_tiles.relaid(tiles, levels))
     return terrain_tiles.tile_spec(ml_collections.ConfigDict({"tiles": tiles}))
 
 

@@ -246,6 +246,15 @@ TILES = {
 }
 
 
+def relaid(tiles, levels: int) -> dict:
+    """The `tiles` keys that change when a field is laid out in `levels` rows of difficulty (an
+    evaluation's, levels >= 1): `levels`, and the curriculum's start levels (training's only)
+    brought within them."""
+    top = levels - 1
+    starts = {k: min(tiles[k], top) for k in ("min_init_level", "max_init_level") if k in tiles}
+    return {"levels": levels, **starts}
+
+
 def tile_spec(cfg) -> TerrainSpec:
     """The TerrainSpec of an env config's `tiles` keys (terrain="tiles"); ValueError
     naming the key for a value the generator refuses."""

@@ -51,14 +51,17 @@ def conditions_config(env_cfg, overrides: list[str]):
     tile) come down to the top level."""
     from quadson_mjx.config import apply_overrides
     from quadson_mjx.env_config import check_env_config, with_added_keys
+    from quadson_mjx.terrain_tiles import relaid
 
     try:
         cfg = apply_overrides(with_added_keys(env_cfg), overrides, prefix="env.")
-        if any(o.split("=", 1)[0] == "tiles.levels" for o in overrides) and "tiles" in cfg:
-            top = cfg.tiles.levels - 1
-            for key in ("min_init_level", "max_init_level"):
-                if key in cfg.tiles and isinstance(top, int) and top >= 0:
-                    cfg.tiles[key] = min(cfg.tiles[key], top)
+        levels = cfg.tiles.levels if "tiles" in cfg else None
+        if (
+            any(o.split("=", 1)[0] == "tiles.levels" for o in overrides)
+            and isinstance(levels, int)
+            and levels >= 1
+        ):
+            cfg.tiles.update(relaid(cfg.tiles, levels))
         check_env_config(cfg)
     except ValueError as e:
         raise UsageError(str(e)) from None
