@@ -376,6 +376,30 @@ def brax_evaluator_compiles_once():
         acting.Evaluator = original
 
 
+@contextlib.contextmanager
+def brax_without_evaluator():
+    """While active, brax's `acting.Evaluator` is a stand-in that builds nothing: for
+    `ppo.train(run_evals=False)`, which never evaluates but still constructs its evaluator, and
+    brax 0.14.2's evaluator compiles and runs a reset of its environments on construction (5.3 s
+    of compilation at a 2 ms step on one H200). An evaluation asked of it raises."""
+    from brax.training import acting
+
+    original = acting.Evaluator
+
+    class Evaluator:
+        def __init__(self, *args, key=None, **kwargs):
+            self._key = key  # brax_training_state's subclass advances it
+
+        def run_evaluation(self, *args, **kwargs):
+            raise RuntimeError("brax asked for an evaluation of a run with ppo.run_evals=false")
+
+    acting.Evaluator = Evaluator
+    try:
+        yield
+    finally:
+        acting.Evaluator = original
+
+
 def brax_epoch_keys(seed: int, epoch: int, devices: int, process_id: int = 0) -> jax.Array:
     """The PRNG keys brax 0.14.2's `ppo.train(seed=seed)` passes to its training epoch number
     `epoch` (0-based), (devices, 2) uint32: its key derivation, step by step, so that a resumed

@@ -329,6 +329,39 @@ def test_adaptive_kl_schedule_moves_the_rate_and_resumes_with_it(tmp_path):
     assert lr0 < r1 < lr0 * 2.25 and r2 == pytest.approx(lr0 * 2.25, rel=1e-6)
 
 
+def test_training_without_evaluations_trains_the_same_policy(uninterrupted, tmp_path, monkeypatch):
+    """ppo.run_evals=false (brax's run_evals): no evaluation episodes and no evaluator built, so
+    brax's evaluator, made to fail here, is never constructed. The checkpoints are written at the
+    same steps, the records and progress lines carry the training losses, and the policy is the
+    one trained with evaluations, bit for bit (on the CPU XLA is deterministic; the evaluations
+    draw from their own key)."""
+    from brax.training import acting
+
+    def no_evaluator(*args, **kwargs):
+        raise AssertionError("brax's evaluator was constructed")
+
+    monkeypatch.setattr(acting.Evaluator, "__init__", no_evaluator)
+    ref_evals, ref_params = uninterrupted
+    records, out = {}, io.StringIO()
+    _, params, metrics = training.train(
+        _small_env(),
+        apply_overrides(training.ppo_config("test"), [*RUN, "run_evals=false"]),
+        tmp_path,
+        progress_stream=out,
+        on_eval=records.__setitem__,
+    )
+    assert sorted(records) == [128, 256] and sorted(ref_evals) == [0, 128, 256]
+    for step, record in records.items():
+        assert not any(k.startswith("eval/") for k in record), step
+        assert math.isfinite(record["training/total_loss"])
+        assert record["training/total_loss"] == ref_evals[step]["training/total_loss"]
+    assert re.search(r"256/192 steps .*\| loss [0-9.]+ \|", out.getvalue())
+    assert [step for _, step in training.list_checkpoints(tmp_path)] == [0, 128, 256]
+    for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(ref_params), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert metrics["training/total_loss"] == records[256]["training/total_loss"]
+
+
 def test_resume_of_a_finished_run_is_refused(interrupted_then_resumed):
     run_dir, *_ = interrupted_then_resumed
     with pytest.raises(ValueError, match="already trained"):

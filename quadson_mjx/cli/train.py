@@ -339,7 +339,10 @@ def _run(args, overrides, stop) -> int:
     print(f"\ndone in {time.monotonic() - t0:.0f} s")
     if not primary:
         return 0
-    for key in ("eval/episode_reward", "eval/mean_forward_speed", "eval/avg_episode_length"):
+    shown = ("eval/episode_reward", "eval/mean_forward_speed", "eval/avg_episode_length")
+    if "eval/episode_reward" not in metrics:  # ppo.run_evals=false: the last epoch's loss
+        shown = ("training/total_loss",)
+    for key in shown:
         if key in metrics:
             print(f"  {key}: {metrics[key]:.3f}")
     print(

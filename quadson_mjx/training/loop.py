@@ -357,8 +357,12 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
 
     def progress_fn(step, metrics):
         step = global_step(step)
-        reward = metrics.get("eval/episode_reward")
-        extra = progress.update(step, None if reward is None else float(reward))
+        if ppo_cfg.run_evals:
+            reward = metrics.get("eval/episode_reward")
+            extra = progress.update(step, None if reward is None else float(reward))
+        else:  # brax hands the training epoch's metrics: its losses, no episodes
+            loss = metrics.get("training/total_loss")
+            extra = progress.update(step, None if loss is None else float(loss), "loss")
         record = {
             **{k: float(v) for k, v in metrics.items()},
             **{f"progress/{k}": v for k, v in extra.items()},
@@ -436,6 +440,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
         with (
             multi_device,
             compat.brax_multi_process(ppo_cfg.seed, ppo_cfg.num_envs, devices),
+            compat.brax_without_evaluator() if not ppo_cfg.run_evals else contextlib.nullcontext(),
             compat.brax_evaluator_compiles_once(),
             compat.brax_training_state(state, eval_offset=first_epoch if ppo_cfg.num_evals > 1 else 0),
             compilations,
@@ -474,6 +479,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
                 restore_params=restore,
                 max_devices_per_host=ppo_cfg.max_devices or None,
                 deterministic_eval=ppo_cfg.deterministic_eval,
+                run_evals=ppo_cfg.run_evals,
             )
     except KeyboardInterrupt as e:
         if not isinstance(e, compat.ProcessesStopped):  # the others stop at their next meeting

@@ -84,7 +84,8 @@ class XlaCompilations:
 
 @dataclasses.dataclass
 class Progress:
-    """Terminal progress: one line per evaluation with steps, steps/s, ETA and the latest reward."""
+    """Terminal progress: one line per evaluation with steps, steps/s, ETA and the latest reward
+    (or, without evaluations, the training loss)."""
 
     total_steps: int
     start_step: int = 0
@@ -92,7 +93,9 @@ class Progress:
     t0: float = dataclasses.field(default_factory=time.monotonic)
     last: tuple[float, int] | None = None
 
-    def update(self, step: int, reward: float | None) -> dict[str, float]:
+    def update(self, step: int, reward: float | None, label: str = "eval reward") -> dict[str, float]:
+        """Prints the line of `step`; `reward` is shown as `label` (a run without evaluations
+        shows its training loss instead)."""
         now = time.monotonic()
         done = step - self.start_step
         if self.last is not None and step > self.last[1]:
@@ -110,7 +113,7 @@ class Progress:
         rew_txt = f"{reward:.3f}" if reward is not None else "--"
         print(
             f"[{bar}] {step:,}/{self.total_steps:,} steps | {sps_txt} steps/s | ETA {eta_txt} | "
-            f"eval reward {rew_txt} | {now - self.t0:.0f}s",
+            f"{label} {rew_txt} | {now - self.t0:.0f}s",
             file=self.stream,
             flush=True,
         )
