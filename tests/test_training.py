@@ -334,7 +334,7 @@ def test_training_without_evaluations_trains_the_same_policy(uninterrupted, tmp_
     brax's evaluator, made to fail here, is never constructed. The checkpoints are written at the
     same steps, the records and progress lines carry the training losses, and the policy is the
     one trained with evaluations, bit for bit (on the CPU XLA is deterministic; the evaluations
-    draw from their own key)."""
+    draw from their own key), also when the run is stopped after its first epoch and resumed."""
     from brax.training import acting
 
     def no_evaluator(*args, **kwargs):
@@ -343,12 +343,21 @@ def test_training_without_evaluations_trains_the_same_policy(uninterrupted, tmp_
     monkeypatch.setattr(acting.Evaluator, "__init__", no_evaluator)
     ref_evals, ref_params = uninterrupted
     records, out = {}, io.StringIO()
+
+    def stop_after_first(step, record):
+        records[step] = record
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        training.train(
+            _small_env(),
+            apply_overrides(training.ppo_config("test"), [*RUN, "run_evals=false"]),
+            tmp_path,
+            progress_stream=out,
+            on_eval=stop_after_first,
+        )
     _, params, metrics = training.train(
-        _small_env(),
-        apply_overrides(training.ppo_config("test"), [*RUN, "run_evals=false"]),
-        tmp_path,
-        progress_stream=out,
-        on_eval=records.__setitem__,
+        None, None, tmp_path, resume=True, progress_stream=out, on_eval=records.__setitem__
     )
     assert sorted(records) == [128, 256] and sorted(ref_evals) == [0, 128, 256]
     for step, record in records.items():
