@@ -9,6 +9,9 @@ entries set to 0) or "command" (the commanded vx, vy as the estimate, 0 vertical
 
     rows = evaluate([("results/policy_h100_joystick", "true"), ("runs/new", "true")],
                     commands, terrain="rough", seconds=20.0, replicas=4)
+
+A policy is a run directory (its newest checkpoint) or one of its checkpoint files
+(RUN/checkpoints/step_*.msgpack, checked against its checksum), as for --init-from.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import with_added_keys
 from quadson_mjx.obs_spec import VELOCITY_SOURCES
-from quadson_mjx.training import load_policy
+from quadson_mjx.training import init_point, load_policy
 
 SETTLE_S = 1.0  # the first second of every episode is left out of the RMS
 
@@ -58,6 +61,15 @@ def eval_config(env_cfg, terrain: str, overrides=()):
     return apply_overrides(with_added_keys(env_cfg), [f"terrain={terrain}", *overrides], prefix="env.")
 
 
+def load_source(source):
+    """load_policy of a run directory (its newest checkpoint) or of one of its checkpoint files."""
+    path = Path(source)
+    if path.is_file():
+        run_dir, checkpoint, _ = init_point(path)
+        return load_policy(run_dir, checkpoint=checkpoint)
+    return load_policy(path)
+
+
 def evaluate_one(
     run_dir,
     commands: np.ndarray,
@@ -67,13 +79,13 @@ def evaluate_one(
     seed: int = 0,
     overrides=(),
 ) -> dict:
-    """One policy over commands (N, 3) (vx [m/s], vy [m/s], yaw rate [rad/s]; one environment each,
+    """One policy (run_dir: a run directory or a checkpoint file of one) over commands (N, 3) (vx [m/s], vy [m/s], yaw rate [rad/s]; one environment each,
     its own randomized model when the run's config randomizes; pushes as configured) on `terrain`
     for `seconds`, its env config with `overrides` ("KEY=VALUE", the evaluation's conditions:
     cli.conditions). -> a row: per-axis RMS over the kept steps, falls (environments that fell at
     least once / N), off_field (environments that reached the stone field's edge, a truncation),
     and per-command RMS and falls."""
-    policy, env_cfg, _, _ = load_policy(Path(run_dir))
+    policy, env_cfg, _, _ = load_source(run_dir)
     cfg = eval_config(env_cfg, terrain, overrides)
     env = LocomotionEnv(cfg)
     policy = fed_velocity(policy, env, velocity_source)

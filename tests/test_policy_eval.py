@@ -45,6 +45,7 @@ def test_fed_velocity_refuses_a_sensor_policy():
     [
         ["--policy", "results/policy_h100_joystick:estimate"],
         ["--policy", "no/such/run"],
+        ["--policy", "results/policy_h100_joystick/config.json"],  # neither a run nor a checkpoint
         ["--policy", "results/policy_h100_joystick", "--seconds", "nan"],
         ["--policy", "results/policy_h100_joystick", "--replicas", "0"],
         ["--policy", "results/policy_h100_joystick", "--out", "/proc/version/x.json"],
@@ -101,3 +102,51 @@ def test_cli_env_overrides_reach_every_evaluation(monkeypatch, tmp_path):
         "sensor",
         "sim_dt",
     }
+
+
+def test_a_checkpoint_file_is_evaluated_as_that_checkpoint(monkeypatch, tmp_path, capsys):
+    """--policy RUN/checkpoints/step_N.msgpack[:source]: the CLI hands the file on, and
+    evaluate_one loads that checkpoint of that run (not the run's newest); a checkpoint whose bytes
+    no longer match its checksum is one line and exit 2."""
+    import shutil
+    from pathlib import Path
+
+    from quadson_mjx import policy_eval
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)
+    ckpt = next(Path("results/policy_h200_sensors_e16u10_dt2_lr3/checkpoints").glob("step_*.msgpack"))
+    seen = {}
+    monkeypatch.setattr(policy_eval, "evaluate", lambda runs, *a: seen.update(runs=runs) or [])
+    assert cli.main(["--policy", f"{ckpt}:true"]) == 0
+    assert seen["runs"] == [(str(ckpt), "true")]
+
+    class Loaded(Exception):
+        pass
+
+    def fake_load(run_dir, checkpoint=None, deterministic=True):
+        seen.update(run_dir=Path(run_dir), checkpoint=checkpoint)
+        raise Loaded
+
+    monkeypatch.setattr(policy_eval, "load_policy", fake_load)
+    with pytest.raises(Loaded):
+        policy_eval.evaluate_one(str(ckpt), np.zeros((1, 3)), "flat", 2.0)
+    assert (
+        seen["run_dir"] == Path("results/policy_h200_sensors_e16u10_dt2_lr3") and seen["checkpoint"] == ckpt
+    )
+    with pytest.raises(Loaded):
+        policy_eval.evaluate_one("results/policy_h200_sensors_e16u10_dt2_lr3", np.zeros((1, 3)), "flat", 2.0)
+    assert seen["checkpoint"] is None  # a run directory: load_policy takes its newest
+
+    run = tmp_path / "run"
+    shutil.copytree(
+        "results/policy_h200_sensors_e16u10_dt2_lr3", run, ignore=shutil.ignore_patterns("comparison")
+    )
+    damaged = run / ckpt.relative_to("results/policy_h200_sensors_e16u10_dt2_lr3")
+    data = bytearray(damaged.read_bytes())
+    data[100] ^= 0xFF
+    damaged.write_bytes(bytes(data))
+    capsys.readouterr()
+    assert cli.main(["--policy", str(damaged)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and err.count("\n") == 1 and "--policy" in err, err

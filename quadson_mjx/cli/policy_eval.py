@@ -3,7 +3,8 @@
     quadson-policy-eval --policy results/policy_h100_joystick:true --policy runs/new \\
         --terrain flat rough --seconds 20 --replicas 4 --out results/joystick_eval.json
 
-Each --policy is RUN_DIR[:VELOCITY_SOURCE]; the source (true, zero, command) replaces a true_state
+Each --policy is RUN_DIR[:VELOCITY_SOURCE] or RUN_DIR/checkpoints/step_N.msgpack[:VELOCITY_SOURCE]
+(that checkpoint instead of the newest: the curve of a run trained with --ppo.run_evals=false); the source (true, zero, command) replaces a true_state
 policy's base-velocity input (quadson_mjx.policy_eval). Every policy sees the same commands (the
 sweep of quadson-rollout, 75 commands, each `--replicas` times), seeds and randomized models, in
 each run's own env config; `--env.KEY=VALUE` changes the evaluation's conditions for all of them,
@@ -26,7 +27,12 @@ MAX_SECONDS = 600.0  # a trial longer than this is a typo, not an evaluation
 
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--policy", action="append", required=True, help="RUN_DIR[:true|zero|command]")
+    p.add_argument(
+        "--policy",
+        action="append",
+        required=True,
+        help="RUN_DIR or RUN_DIR/checkpoints/step_N.msgpack, then [:true|zero|command]",
+    )
     p.add_argument("--terrain", nargs="+", default=["flat", "rough"], choices=["flat", "rough"])
     p.add_argument("--seconds", type=float, default=20.0, help="trial length [s]")
     p.add_argument("--replicas", type=int, default=4, help="environments per command of the sweep")
@@ -48,12 +54,20 @@ def policies(args) -> list[tuple[str, str]]:
             raise UsageError(
                 f"--policy {spec}: velocity source {source!r}; choose from {', '.join(VELOCITY_SOURCES)}"
             )
-        if not (Path(run) / "config.json").is_file():
-            raise UsageError(f"--policy {spec}: {run} is not a training run directory (no config.json)")
+        run_dir = Path(run)
+        if run_dir.is_file():  # one of a run's checkpoints
+            from quadson_mjx.training import init_point
+
+            try:
+                run_dir = init_point(run_dir)[0]
+            except (ValueError, OSError) as e:
+                raise UsageError(f"--policy {spec}: {e}") from None
+        if not (run_dir / "config.json").is_file():
+            raise UsageError(f"--policy {spec}: {run_dir} is not a training run directory (no config.json)")
         if args.env_overrides:  # refused before any evaluation starts
             from quadson_mjx.training import load_run_config
 
-            conditions_config(load_run_config(Path(run))[0], args.env_overrides)
+            conditions_config(load_run_config(run_dir)[0], args.env_overrides)
         out.append((run, source))
     return out
 
