@@ -79,8 +79,9 @@ def evaluate_one(
     seed: int = 0,
     overrides=(),
 ) -> dict:
-    """One policy (run_dir: a run directory or a checkpoint file of one) over commands (N, 3) (vx [m/s], vy [m/s], yaw rate [rad/s]; one environment each,
-    its own randomized model when the run's config randomizes; pushes as configured) on `terrain`
+    """One policy (run_dir: a run directory or a checkpoint file of one) over commands (N, 3) (vx
+    [m/s], vy [m/s], yaw rate [rad/s]; one environment each, its own randomized model when the
+    run's config randomizes; pushes as configured) on `terrain`
     for `seconds`, its env config with `overrides` ("KEY=VALUE", the evaluation's conditions:
     cli.conditions). -> a row: per-axis RMS over the kept steps, falls (environments that fell at
     least once / N), off_field (environments that reached the stone field's edge, a truncation),

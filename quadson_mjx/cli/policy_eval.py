@@ -4,8 +4,9 @@
         --terrain flat rough --seconds 20 --replicas 4 --out results/joystick_eval.json
 
 Each --policy is RUN_DIR[:VELOCITY_SOURCE] or RUN_DIR/checkpoints/step_N.msgpack[:VELOCITY_SOURCE]
-(that checkpoint instead of the newest: the curve of a run trained with --ppo.run_evals=false); the source (true, zero, command) replaces a true_state
-policy's base-velocity input (quadson_mjx.policy_eval). Every policy sees the same commands (the
+(that checkpoint instead of the newest: the curve of a run trained with --ppo.run_evals=false); the
+source (true, zero, command) replaces a true_state policy's base-velocity input
+(quadson_mjx.policy_eval). Every policy sees the same commands (the
 sweep of quadson-rollout, 75 commands, each `--replicas` times), seeds and randomized models, in
 each run's own env config; `--env.KEY=VALUE` changes the evaluation's conditions for all of them,
 and only those (quadson_mjx.cli.conditions: sensor model, noise, randomization, pushes, the MJX
