@@ -357,12 +357,12 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
 
     def progress_fn(step, metrics):
         step = global_step(step)
-        if ppo_cfg.run_evals:
-            reward = metrics.get("eval/episode_reward")
-            extra = progress.update(step, None if reward is None else float(reward))
-        else:  # brax hands the training epoch's metrics: its losses, no episodes
-            loss = metrics.get("training/total_loss")
-            extra = progress.update(step, None if loss is None else float(loss), "loss")
+        # without evaluations brax hands the training epoch's metrics: its losses, no episodes
+        key, label = (
+            ("eval/episode_reward", "eval reward") if ppo_cfg.run_evals else ("training/total_loss", "loss")
+        )
+        value = metrics.get(key)
+        extra = progress.update(step, None if value is None else float(value), label)
         record = {
             **{k: float(v) for k, v in metrics.items()},
             **{f"progress/{k}": v for k, v in extra.items()},

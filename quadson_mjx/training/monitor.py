@@ -93,9 +93,9 @@ class Progress:
     t0: float = dataclasses.field(default_factory=time.monotonic)
     last: tuple[float, int] | None = None
 
-    def update(self, step: int, reward: float | None, label: str = "eval reward") -> dict[str, float]:
-        """Prints the line of `step`; `reward` is shown as `label` (a run without evaluations
-        shows its training loss instead)."""
+    def update(self, step: int, value: float | None, label: str = "eval reward") -> dict[str, float]:
+        """Prints the line of `step` with `value` shown as `label`: the evaluation's reward, or
+        the training loss of a run without evaluations."""
         now = time.monotonic()
         done = step - self.start_step
         if self.last is not None and step > self.last[1]:
@@ -110,7 +110,7 @@ class Progress:
         bar = "#" * filled + "-" * (width - filled)
         eta_txt = f"{int(eta // 60)}m{int(eta % 60):02d}s" if eta == eta else "--"
         sps_txt = f"{sps:,.0f}" if sps == sps else "--"
-        rew_txt = f"{reward:.3f}" if reward is not None else "--"
+        rew_txt = f"{value:.3f}" if value is not None else "--"
         print(
             f"[{bar}] {step:,}/{self.total_steps:,} steps | {sps_txt} steps/s | ETA {eta_txt} | "
             f"{label} {rew_txt} | {now - self.t0:.0f}s",
