@@ -58,6 +58,7 @@ def test_fed_velocity_refuses_a_sensor_policy():
         ["--policy", "results/policy_h100_sensors", "--env.sim_dt=0.003"],  # ctrl_dt 0.02 not a multiple
         ["--policy", "results/policy_h100_sensors", "--env.hfield_foot_contacts=2"],  # 4 or 1
         ["--policy", "results/policy_h100_sensors", "--env.hfield_foot_contacts=1", "--env.impl=warp"],
+        ["--policy", "results/policy_h100_sensors", "--env.fivebar_model=heavy"],  # full or light
     ],
 )
 def test_cli_bad_inputs_one_line_exit_2(argv, capsys, monkeypatch):
@@ -150,3 +151,33 @@ def test_a_checkpoint_file_is_evaluated_as_that_checkpoint(monkeypatch, tmp_path
     assert cli.main(["--policy", str(damaged)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and err.count("\n") == 1 and "--policy" in err, err
+
+
+def test_the_five_bar_model_is_an_evaluation_condition(monkeypatch):
+    """--env.fivebar_model=light|full evaluates a policy on the other five-bar model (a policy
+    trained on the light model, on the robot's full one): the plant changes (link 4 and its hinge
+    gone), what the actor and the critic observe and what the policy commands do not, entry by
+    entry, and the encoders read the same home stance on both."""
+    from pathlib import Path
+
+    from quadson_mjx.cli.conditions import condition_overrides, conditions_config
+    from quadson_mjx.training import load_run_config
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])
+    run_cfg, _ = load_run_config(Path("results/policy_h100_sensors"))
+    assert run_cfg.fivebar_model == "full" and run_cfg.observation == "sensors"
+    cfg = conditions_config(run_cfg, condition_overrides(["--env.fivebar_model=light"]))
+    assert {k for k in cfg.to_dict() if cfg[k] != run_cfg[k]} == {"fivebar_model"}
+    full, light = LocomotionEnv(run_cfg), LocomotionEnv(cfg)
+    assert (full.mj_model.nv, light.mj_model.nv) == (26, 22)
+    assert light.obs_spec.names == full.obs_spec.names
+    assert light.critic_spec.names == full.critic_spec.names
+    assert light.action_spec.names == full.action_spec.names
+    # what the encoders read at the home keyframe: the same motor angles on both models
+    joints = [n.split(".", 1)[1] for n in full.obs_spec.names if n.startswith("motor_pos.")]
+    assert len(joints) == 12
+
+    def home(m):
+        return np.asarray([m.key("home").qpos[m.jnt_qposadr[m.joint(j).id]] for j in joints])
+
+    np.testing.assert_allclose(home(light.mj_model), home(full.mj_model), atol=1e-9)

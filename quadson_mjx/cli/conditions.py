@@ -1,8 +1,9 @@
 """An evaluation's conditions on the command line: `--env.KEY=VALUE` for the keys of the env config
 that set the world a trained policy is evaluated in (CONDITION_KEYS: the sensor model, noise, the
 randomization ranges, pushes, the MJX implementation, the physics timestep, the feet's contacts on a
-height field, the tiled ground's number of levels), never what the policy observes or does (the
-policy still acts every ctrl_dt).
+height field, the five-bar model, the tiled ground's number of levels), never what the policy
+observes or does (the policy still acts every ctrl_dt; both five-bar models give the same
+observation and action, entry by entry).
 Used by quadson-tiles-eval and quadson-policy-eval, e.g. `--env.sensor.imu_tilt_rad=0.01`: the
 IMU's mounting as a calibrated robot keeps it (deploy_imu) instead of within 2 degrees;
 `--env.tiles.levels=8 --levels 5`: the tiles at 6/8 of their largest size (15 degrees, 3 cm steps)
@@ -23,6 +24,7 @@ CONDITION_KEYS = (
     "impl",
     "sim_dt",
     "hfield_foot_contacts",
+    "fivebar_model",  # the plant's five-bar: a policy trained on the light model, evaluated on the full one
     "tiles.levels",  # the rows of the tiled ground: level L of N is (L + 1) / N of each type's largest size
 )
 
