@@ -723,9 +723,16 @@ def test_regression_second_sigint_during_compilation_exits_130_and_stays_resumab
     # Two Ctrl-C during the first compilation ended in a segfault (exit 139, two of two tries).
     run, out = contested_run["run"], contested_run["out"]
     assert not contested_run["latest_before_signals"]  # still before the first checkpoint
-    assert contested_run["returncode"] == 130, out[-3000:]
+    code = contested_run["returncode"]
     assert contested_run["exit_s"] < 10  # at once, not after the compilation
-    assert "Traceback" not in out and "second SIGINT: stopped at once" in out
+    assert "Traceback" not in out
+    if code == -signal.SIGINT:
+        # The first signal's stop completed within the 0.5 s between the signals (its last line
+        # printed), and the second came in the interpreter's last moments, after Python had reset
+        # SIGINT to the system's default (seen once in CI); a shell shows 130 for this death too.
+        assert "Continue from step 0 (no checkpoint yet)" in out, out[-3000:]
+    else:
+        assert code == 130 and "second SIGINT: stopped at once" in out, out[-3000:]
     assert _events(run / "train.mcap") == ["start", "interrupted"]
     assert training.lock_holder(run) is None
     _, ppo_cfg = training.load_run_config(run)
