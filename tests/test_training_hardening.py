@@ -439,7 +439,9 @@ def test_regression_old_checkpoints_without_a_checksum_load_with_a_notice(tmp_pa
     for _ in range(2):
         assert training.verify_checkpoint(path) is False
         training.load_checkpoint(path, OBS, ACT, _ppo())
-    assert capsys.readouterr().err.count("has no checksum file") == 1  # once per process
+    err = capsys.readouterr().err
+    assert err.count("has no checksum file") == 1  # once per process
+    assert "has no checksum file step_000000000064.msgpack.sha256 " in err  # names the file it looked for
 
 
 def test_committed_runs_still_load():

@@ -63,7 +63,7 @@ _unverified_notice_given = False
 
 def verify_checkpoint(path: Path) -> bool:
     """Checks `path` against its checksum file. -> True when they agree; False for a file written
-    before checksums existed (no NAME.sha256; a notice on stderr, once per process). Raises
+    before checksums existed or copied without NAME.sha256 (a notice on stderr, once per process). Raises
     FileNotFoundError for a missing file and CheckpointDamaged naming the file when they differ."""
     global _unverified_notice_given
     path = Path(path)
@@ -74,7 +74,8 @@ def verify_checkpoint(path: Path) -> bool:
         if not _unverified_notice_given:
             _unverified_notice_given = True
             print(
-                f"notice: {path} has no checksum file (written before checksums existed); loaded unverified",
+                f"notice: {path} has no checksum file {side.name} (written before checksums "
+                "existed, or copied without it); loaded unverified",
                 file=sys.stderr,
             )
         return False
