@@ -669,7 +669,7 @@ def contested_run(tmp_path_factory):
 # A process that has stopped its run and now exits through a slow clean-up, as jax's at exit: the
 # signal arrives while that clean-up runs. "guard" installs the script's handler, "none" does not.
 _SLOW_EXIT = """
-import atexit, sys, time
+import atexit, signal, sys, time
 from quadson_mjx.cli.train import exit_at_once_on_another_signal
 def slow_clean_up():
     t0 = time.monotonic()
@@ -678,6 +678,8 @@ def slow_clean_up():
 atexit.register(slow_clean_up)
 if sys.argv[1] == "guard":
     exit_at_once_on_another_signal()
+else:  # Python's own Ctrl-C handler, as in a terminal: a suite started in the background (`&`)
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # passes SIGINT on ignored
 print("exiting", flush=True)
 sys.exit(130)
 """
