@@ -2,7 +2,8 @@
 to change: presets (PPO hyperparameters), networks, checkpoints (files under run_dir/checkpoints),
 runs (a run directory's configs, lock, resume point, log, policy), monitor (progress, XLA
 compilations, signals), guards (divergence, memory, backend), widen (a checkpoint into a longer
-observation history, for --init-from), loop (`train`). This face only
+observation history, for --init-from), loop (`train`), precompile (a fine-tune's programs compiled
+in a process of their own while the run before it trains). This face only
 re-exports them: `training.train(...)`, `training.ppo_config(...)`."""
 
 # ruff: noqa: F401 (every import here is a re-export)
@@ -23,7 +24,7 @@ from quadson_mjx.training.checkpoints import (
     verify_checkpoint,
 )
 from quadson_mjx.training.guards import OutOfMemory, TrainingDiverged
-from quadson_mjx.training.loop import train
+from quadson_mjx.training.loop import KEPT_RECORDS, train
 from quadson_mjx.training.monitor import (
     Progress,
     SignalStop,
@@ -32,6 +33,7 @@ from quadson_mjx.training.monitor import (
     enable_compilation_cache,
 )
 from quadson_mjx.training.networks import make_networks, params_template
+from quadson_mjx.training.precompile import Compiled, Precompile, compile_only
 from quadson_mjx.training.presets import (
     POLICY_DISTRIBUTIONS,
     PPO_KEYS_ADDED,

@@ -69,6 +69,9 @@ from quadson_mjx.training.runs import (
 )
 from quadson_mjx.training.widen import init_params_for
 
+# config.json's entries besides the configs that a resumed run keeps (see `train`'s record)
+KEPT_RECORDS = ("finetune",)
+
 
 def train(
     env_cfg,
@@ -79,6 +82,7 @@ def train(
     on_eval: Callable[[int, dict], None] | None = None,
     init_from: str | Path | None = None,
     stop: SignalStop | None = None,
+    record: dict | None = None,
 ):
     """Trains with brax PPO and writes the run directory. Returns (make_policy, params, metrics).
 
@@ -105,6 +109,9 @@ def train(
     (training/widen.py; "widened_from_<key>" in the record). The source, its step and the
     checkpoint's SHA-256 are kept in config.json ("init_from", kept on resume) and in the log's
     start event, and the step-0 checkpoint is the source's parameters.
+
+    record: more entries of config.json (a new run's; a resumed run keeps those it had), e.g. the
+    fine-tune that follows the run ("finetune", cli/finetune.py).
 
     SIGINT and SIGTERM (Ctrl-C, a scheduler's preemption) are deferred while training: the run
     stops at the next safe point: before a training epoch or an evaluation, or after saving a
@@ -141,7 +148,7 @@ def train(
     stop = SignalStop() if owned else stop
     with stop.installed() if owned else contextlib.nullcontext(), contextlib.ExitStack() as held:
         return _train(
-            env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop, held, init_from
+            env_cfg, ppo_cfg, Path(run_dir), resume, progress_stream, on_eval, stop, held, init_from, record
         )
 
 
@@ -164,7 +171,9 @@ def _remove_if_unused(run_dir: Path) -> None:
             run_dir.rmdir()
 
 
-def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: SignalStop, held, init_from):
+def _train(
+    env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop: SignalStop, held, init_from, record
+):
     from brax.training.agents.ppo import train as ppo
 
     from quadson_mjx import compat, warp_build
@@ -207,7 +216,9 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
     if resume:
         env_cfg, ppo_cfg = load_run_config(run_dir)
         with contextlib.suppress(OSError, ValueError, AttributeError):
-            origin = json.loads((run_dir / "config.json").read_text()).get("init_from")
+            old_config = json.loads((run_dir / "config.json").read_text())
+            origin = old_config.get("init_from")
+            record = {k: old_config[k] for k in KEPT_RECORDS if k in old_config}
         if primary:
             check_writable_dir(run_dir)
             held.enter_context(run_dir_lock(run_dir))
@@ -301,6 +312,7 @@ def _train(env_cfg, ppo_cfg, run_dir: Path, resume: bool, stream, on_eval, stop:
                     "ppo": json.loads(to_json(ppo_cfg)),
                     "versions": vers,
                     **({"init_from": origin} if origin else {}),
+                    **(record or {}),
                 },
                 indent=2,
             ),
