@@ -38,7 +38,7 @@ def main(argv: list[str]) -> int:
     mark("jax imported")
     jax.devices()
     mark("jax backend started")
-    from quadson_mjx.cli import train
+    from quadson_mjx.cli import train, train_configs
 
     mark("train command imported")
     import quadson_mjx.envs as envs
@@ -46,7 +46,7 @@ def main(argv: list[str]) -> int:
     import quadson_mjx.training.monitor as monitor
 
     mark("environments, brax and the training loop imported")
-    timed(train, "new_run_configs", "configs built")
+    timed(train_configs, "new_run_configs", "configs built")
     timed(envs, "make_env", "environment built")
     timed(loop.guards, "check_memory", "memory checked")
     progress_init = monitor.Progress.__init__

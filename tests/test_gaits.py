@@ -505,7 +505,7 @@ def test_ppo_gait_trains_the_recipe(ppo_cli, monkeypatch, tmp_path):
     class Stop(Exception):
         pass
 
-    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None):
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None, on_eval=None, record=None):
         seen.update(env_cfg=env_cfg, run_dir=run_dir, resume=resume, init_from=init_from)
         raise Stop
 

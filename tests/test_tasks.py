@@ -407,9 +407,10 @@ def _fake_train(monkeypatch):
     class Stop(Exception):
         pass
 
-    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None):
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None, on_eval=None, record=None):
         assert init_from is None  # a new run from its task, not a fine-tune
         assert stop is None  # one process: train installs its own signal handlers
+        assert on_eval is None and record is None  # no fine-tune asked for
         seen["env_cfg"] = env_cfg
         raise Stop
 
@@ -457,7 +458,7 @@ def test_main_job_alone_gets_the_main_job_ppo_settings(monkeypatch, tmp_path):
 
     seen = []
 
-    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None):
+    def fake_train(env_cfg, ppo_cfg, run_dir, resume, init_from=None, stop=None, on_eval=None, record=None):
         seen.append((env_cfg, ppo_cfg))
         raise Stop
 

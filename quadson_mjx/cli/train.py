@@ -7,6 +7,9 @@
     quadson-train --init-from results/gaits/bound --run-dir runs/bound_heavy --env.randomization.mass_scale=0.9,1.25
     quadson-train --task QuadsonGaitBound --run-dir results/gaits/bound     # a gait's recipe
     quadson-train --task CaramelCommandRough                  # seed 003's robot
+    quadson-train --task QuadsonJoystickRough --finetune.env.sim_dt=0.0025 --finetune.ppo.learning_rate=0.0003
+                                                              # then a fine-tune from its end (cli/finetune.py)
+    quadson-train --compile-only --init-from RUN --env.sim_dt=0.0025   # a run's programs into the cache
     quadson-train --list-tasks                                # the registered tasks and their flags
     quadson-train --coordinator host0:1234 --num-processes 2 --process-id 0   # on host0 (1 on host1)
     srun quadson-train --distributed                          # SLURM / Open MPI: one task per host
@@ -27,30 +30,22 @@ Ctrl-C or SIGTERM stops at the next safe point with status 130 (twice: at once, 
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import jax
 
 from quadson_mjx import tasks, training
+from quadson_mjx.cli import finetune, train_configs
 from quadson_mjx.cli.distributed import lost_peer, start_distributed
-from quadson_mjx.config import apply_overrides
-from quadson_mjx.env_config import ENV_TERRAINS, check_env_config
+from quadson_mjx.env_config import ENV_TERRAINS
 from quadson_mjx.env_recipes import GAIT_RECIPES
 from quadson_mjx.errors import ArgumentParser, UsageError, one_line_errors
 from quadson_mjx.robots import ROBOT_NAMES
-from quadson_mjx.training.guards import check_backend
-
-# the flags a task stands for, with their defaults
-TASK_FLAG_DEFAULTS = {"robot": "quadson", "env_preset": "seed", "terrain": "flat", "gait": None}
-
-
-def is_main_job(env_cfg) -> bool:
-    """Whether an env config (before overrides) is the main job's: no task and no flag, or its task
-    QuadsonFlat. The main job has PPO settings of its own on a GPU (training.presets.MAIN_JOB)."""
-    return env_cfg.to_dict() == tasks.config_from_flags().to_dict()
 
 
 def parse(argv):
@@ -119,32 +114,30 @@ def parse(argv):
         "(default: $JAX_COMPILATION_CACHE_DIR or %(default)s)",
     )
     p.add_argument("--no-compile-cache", action="store_true", help="compile everything afresh")
+    p.add_argument(
+        "--compile-only",
+        action="store_true",
+        help="compile the run's training epoch (and what runs before it) into the compilation cache "
+        "and exit without training or writing a run directory; one device",
+    )
+    p.add_argument(
+        "--finetune-run-dir",
+        default=None,
+        metavar="DIR",
+        help="the run directory of the fine-tune that --finetune.env.KEY=V / --finetune.ppo.KEY=V ask "
+        "for after this run (default: RUN_DIR_finetune)",
+    )
     p.add_argument("--num-processes", type=int, default=1, help="several hosts: number of processes")
     p.add_argument("--process-id", type=int, default=0, help="several hosts: this process's index")
     args, rest = p.parse_known_args(argv)
-    bad = [r for r in rest if not (r.startswith("--env.") or r.startswith("--ppo."))]
+    bad = [r for r in rest if not r.startswith(("--env.", "--ppo.", finetune.PREFIX))]
     if bad:
         p.error(f"unrecognised arguments: {' '.join(bad)}")
+    try:
+        rest, args.finetune = finetune.split_overrides(rest)
+    except ValueError as e:
+        p.error(str(e))
     return args, rest
-
-
-def task_flags_given(args) -> list[str]:
-    """The flags of a task that the command line set (--robot quadson counts, though the default)."""
-    return [
-        f"--{key.replace('_', '-')} {getattr(args, key)}"
-        for key in TASK_FLAG_DEFAULTS
-        if getattr(args, key) is not None
-    ]
-
-
-def list_tasks() -> str:
-    """One line per task: its name and the flags that spell the same config."""
-    width = max(map(len, tasks.task_names()))
-    lines = []
-    for name, flags in tasks.TASK_FLAGS.items():
-        spelled = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in flags.items() if v is not None)
-        lines.append(f"{name:{width}s}  {spelled}")
-    return "\n".join(lines)
 
 
 def _terminate(signum, frame):
@@ -166,52 +159,6 @@ def exit_at_once_on_another_signal() -> None:
         signal.signal(s, now)
 
 
-def new_run_configs(env_cfg, ppo_cfg, overrides, run_dir, primary: bool):
-    """A new run's configs: the --env./--ppo. overrides applied and checked, and its run directory
-    (default runs/<date-time>; on the primary process checked to be new) -> (env_cfg, ppo_cfg,
-    run_dir). Raises ValueError (or OSError) naming what is wrong."""
-    env_over = [o[len("--env.") :] for o in overrides if o.startswith("--env.")]
-    ppo_over = [o[len("--ppo.") :] for o in overrides if o.startswith("--ppo.")]
-    env_cfg = apply_overrides(env_cfg, env_over, prefix="env.")
-    ppo_cfg = apply_overrides(ppo_cfg, ppo_over, prefix="ppo.")
-    check_env_config(env_cfg)
-    training.check_ppo_config(ppo_cfg)
-    check_backend(env_cfg)
-    run_dir = Path(run_dir or f"runs/{time.strftime('%Y%m%d-%H%M%S')}")
-    if primary:
-        training.check_new_run_dir(run_dir)
-    return env_cfg, ppo_cfg, run_dir
-
-
-def init_configs(args, overrides, primary: bool):
-    """--init-from: the source run's configs with the overrides -> (env_cfg, ppo_cfg, run_dir)."""
-    flags = [
-        name
-        for name, given in (
-            ("--task", args.task is not None),
-            ("--gait", args.gait is not None),
-            ("--gait-action", args.gait_action),
-            ("--env-preset", args.env_preset is not None),
-            ("--terrain", args.terrain is not None),
-            ("--robot", args.robot is not None),
-            ("--preset", args.preset is not None),
-        )
-        if given
-    ]
-    if flags:
-        given = " ".join(flags)
-        raise UsageError(
-            f"--init-from takes the source run's configs (change them with --env.KEY=V): remove {given}"
-        )
-    try:
-        source, _, _ = training.init_point(Path(args.init_from))
-        env_cfg, ppo_cfg = training.load_run_config(source)
-        env_cfg, ppo_cfg, run_dir = new_run_configs(env_cfg, ppo_cfg, overrides, args.run_dir, primary)
-    except (ValueError, OSError) as e:
-        raise UsageError(f"--init-from: {e}") from None
-    return env_cfg, ppo_cfg, run_dir
-
-
 @one_line_errors
 def main(argv=None) -> int:
     try:
@@ -225,10 +172,10 @@ def _main(argv) -> int:
     args, overrides = parse(sys.argv[1:] if argv is None else argv)
     args.program = argv is None  # this process's own command line: it may own the process's signals
     if args.list_tasks:
-        print(list_tasks())
+        print(train_configs.list_tasks())
         return 0
-    if args.task is not None and task_flags_given(args):
-        given = ", ".join(task_flags_given(args))
+    if args.task is not None and train_configs.task_flags_given(args):
+        given = ", ".join(train_configs.task_flags_given(args))
         raise UsageError(f"--task {args.task} names the robot, env preset, terrain and gait: remove {given}")
     signal.signal(signal.SIGTERM, _terminate)
     if not args.no_compile_cache:
@@ -245,76 +192,115 @@ def _main(argv) -> int:
 
 
 def _run(args, overrides, stop) -> int:
-    """Builds or loads the run's configs and trains; `stop`: see training.train."""
+    """Builds or loads the run's configs and trains it, then the fine-tune it asks for, if any;
+    `stop`: see training.train."""
     primary = jax.process_index() == 0  # the process that writes the run directory
     if args.resume and args.init_from:
         raise UsageError("--resume continues a run, --init-from starts a new one: give one of them")
-    if args.init_from:
-        env_cfg, ppo_cfg, run_dir = init_configs(args, overrides, primary)
-    elif args.resume:
-        # what would change the configs: the saved ones rule, so each is refused rather than ignored
-        options = [
-            name
-            for name, given in (
-                ("--task", args.task is not None),
-                ("--gait", args.gait is not None),
-                ("--gait-action", args.gait_action),
-                ("--env-preset", args.env_preset not in (None, "seed")),
-                ("--terrain", args.terrain not in (None, "flat")),
-                ("--robot", args.robot not in (None, "quadson")),
-                ("--preset", args.preset is not None),
-                ("--run-dir", args.run_dir is not None),
+    if args.compile_only:
+        given = [f for f, on in (("--resume", args.resume), ("--run-dir", args.run_dir)) if on]
+        given += [finetune.PREFIX + o[2:] for o in args.finetune]
+        if given:
+            raise UsageError(
+                f"--compile-only builds a new run's programs and writes no run: remove {' '.join(given)}"
             )
-            if given
-        ]
-        if overrides or options:
-            given = " ".join([*options, *overrides])
-            raise UsageError(f"--resume takes the run's saved configs; remove {given}")
-        run_dir = Path(args.resume)
+    env_cfg, ppo_cfg, run_dir, plan, trained = train_configs.run_configs(args, overrides, primary)
+    if args.compile_only:
+        return _compile_only(args, env_cfg, ppo_cfg, stop)
+    ahead = None
+    if plan is not None and not trained:
+        reason = finetune.why_not_ahead(ppo_cfg, not args.no_compile_cache)
+        when = (
+            "compiled by a second process while this run trains"
+            if reason is None
+            else f"compiled when it starts ({reason})"
+        )
+        print(f"then a fine-tune in {plan[1]} ({' '.join(plan[0])}): its programs {when}")
+        if reason is None and primary:
+            start = training.resume_point(run_dir, ppo_cfg)[0] if args.resume else 0
+            ahead = finetune.Ahead(run_dir, plan[0], start)
+    try:
+        if trained:
+            print(f"{run_dir} has trained all its steps: on to its fine-tune")
+        else:
+            record = finetune.record(*plan) if plan is not None and not args.resume else None
+            code = _stage(
+                args,
+                None if args.resume else (env_cfg, ppo_cfg),
+                run_dir,
+                args.init_from,
+                stop,
+                ahead,
+                record,
+            )
+            if code or plan is None:
+                return code
         try:
-            # the checks train() makes, answered as a usage error
-            env_cfg, ppo_cfg = training.load_run_config(run_dir)
-            check_backend(env_cfg)
-            holder = training.lock_holder(run_dir) if primary else None
-            if holder is not None:
-                raise UsageError(f"run directory {run_dir} is in use by process {holder or '(starting)'}")
-            training.resume_point(run_dir, ppo_cfg)
-            training.check_writable_dir(run_dir)
-        except (ValueError, OSError) as e:
-            raise UsageError(f"cannot resume {run_dir}: {e}") from None
-        env_cfg = ppo_cfg = None
-    else:
-        on_gpu = jax.default_backend() == "gpu"
-        preset = args.preset or ("gpu" if on_gpu else "cpu")
-        if not on_gpu and args.preset is None:
-            print("No GPU found: running the small 'cpu' preset (minutes). Use a GPU for the real job.")
-        try:
-            if args.task is not None:
-                env_cfg = tasks.make_task_config(args.task)
-                env_cfg.gait_action = args.gait_action
-            else:
-                flags = {k: getattr(args, k) for k in TASK_FLAG_DEFAULTS}
-                flags = {k: d if flags[k] is None else flags[k] for k, d in TASK_FLAG_DEFAULTS.items()}
-                env_cfg = tasks.config_from_flags(**flags, gait_action=args.gait_action)
-            main = is_main_job(env_cfg)
-            if main and preset == "gpu" and not any(o.startswith("--env.impl=") for o in overrides):
-                env_cfg, line = training.main_job_env(env_cfg, jax.device_count())
+            if ahead is not None and (line := ahead.finish()):
                 print(line)
-            env_cfg, ppo_cfg, run_dir = new_run_configs(
-                env_cfg, training.ppo_config(preset, main), overrides, args.run_dir, primary
+        except KeyboardInterrupt:
+            print(
+                f"\ninterrupted before the fine-tune: continue with python train/ppo_mjx.py --resume {run_dir}"
             )
-        except (ValueError, FileExistsError) as e:
-            raise UsageError(str(e)) from None
+            return 130
+    finally:
+        if ahead is not None:
+            ahead.stop()
+    tune_overrides, tune_dir = plan
+    if (tune_dir / "config.json").exists():  # started before: resumed
+        return _stage(args, None, tune_dir, None, stop)
+    env_cfg, ppo_cfg = training.load_run_config(run_dir)  # as --init-from loads them
+    try:
+        env_cfg, ppo_cfg, _ = train_configs.new_run_configs(
+            env_cfg, ppo_cfg, tune_overrides, tune_dir, primary
+        )
+    except (ValueError, FileExistsError) as e:
+        raise UsageError(f"the fine-tune's {e}") from None
+    return _stage(args, (env_cfg, ppo_cfg), tune_dir, run_dir, stop)
+
+
+def _compile_only(args, env_cfg, ppo_cfg, stop) -> int:
+    """--compile-only: trains in a temporary run directory until brax's first training epoch is
+    compiled (training.compile_only), then removes it."""
+    reason = finetune.why_not_ahead(ppo_cfg, not args.no_compile_cache)
+    if reason is not None:
+        raise UsageError(f"--compile-only: {reason}")
+    run_dir = Path(tempfile.mkdtemp(prefix="quadson-compile-"))
+    t0 = time.monotonic()
+    try:
+        with training.compile_only(), training.XlaCompilations() as built:
+            training.train(
+                env_cfg, ppo_cfg, run_dir, init_from=args.init_from, stop=stop, progress_stream=sys.stderr
+            )
+    except training.Compiled:
+        print(f"compiled in {time.monotonic() - t0:.0f} s: {built.summary()}")
+        return 0
+    finally:
+        shutil.rmtree(run_dir, ignore_errors=True)
+    raise RuntimeError("--compile-only trained instead: brax's training epoch was not found (brax changed?)")
+
+
+def _stage(args, configs, run_dir: Path, init_from, stop, on_eval=None, record=None) -> int:
+    """Trains one run: new with configs=(env_cfg, ppo_cfg), or resumed (configs None) -> exit status."""
+    primary = jax.process_index() == 0
     print(f"run directory: {run_dir}  devices: {', '.join(d.device_kind for d in jax.devices())}")
     if jax.process_count() > 1:
         print(
             f"process {jax.process_index()} of {jax.process_count()}, {jax.local_device_count()} local devices"
             + ("" if primary else ": process 0 evaluates and writes the run directory")
         )
+    env_cfg, ppo_cfg = configs or (None, None)
     t0 = time.monotonic()
     try:
         _, _, metrics = training.train(
-            env_cfg, ppo_cfg, run_dir, resume=bool(args.resume), init_from=args.init_from, stop=stop
+            env_cfg,
+            ppo_cfg,
+            run_dir,
+            resume=configs is None,
+            init_from=init_from,
+            stop=stop,
+            on_eval=on_eval,
+            record=record,
         )
     except (ValueError, FileExistsError, FileNotFoundError) as e:
         # a damaged checkpoint or state file met on resume, a directory taken in the meantime
