@@ -107,6 +107,7 @@ def test_resume_of_a_run_stopped_before_its_finetune_trains_the_finetune(chain, 
         ([*RUN, "--finetune.env.sim_dt=0.003"], "sim_dt"),  # 20 ms is not a whole number of 3 ms steps
         ([*RUN, "--finetune.seed=1"], "--finetune.KEY=V takes env. and ppo. keys: --finetune.seed=1"),
         ([*RUN, "--finetune-run-dir", "x"], "--finetune-run-dir is the run directory of a fine-tune"),
+        ([*RUN, "--run-dir", "a", "--finetune-run-dir", "a", *TUNE], "a run directory of its own"),
         ([*RUN, "--compile-only", "--run-dir", "x"], "--compile-only builds a new run's programs"),
         ([*RUN, "--compile-only", *TUNE], "remove --finetune.env.sim_dt=0.0025"),
         ([*RUN, "--compile-only", "--no-compile-cache"], "--compile-only: no compilation cache"),

@@ -157,6 +157,8 @@ def run_configs(args, overrides, primary: bool):
             raise UsageError(str(e)) from None
     if args.finetune:  # checked now, not after the run's minutes of training
         tune_dir = Path(args.finetune_run_dir or finetune.default_run_dir(run_dir))
+        if tune_dir.resolve() == Path(run_dir).resolve():
+            raise UsageError(f"the fine-tune needs a run directory of its own, not the run's {run_dir}")
         try:
             new_run_configs(env_cfg, ppo_cfg, args.finetune, tune_dir, primary)
         except (ValueError, FileExistsError) as e:

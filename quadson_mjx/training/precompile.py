@@ -85,7 +85,9 @@ class Precompile:
         }
         self.t0 = time.monotonic()
         with open(self.log_path, "w") as out:
-            self.process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, env=env)
+            self.process = subprocess.Popen(
+                argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env
+            )
 
     def finish(self, timeout_s: float | None = None) -> str:
         """Waits (up to timeout_s, then stops it) and -> one line: its last line, or why it failed."""
