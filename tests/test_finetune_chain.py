@@ -148,3 +148,17 @@ def test_compile_only_compiles_the_training_epoch_and_stops_before_running_it():
     assert jax.pmap is original
     assert calls == ["traced"] and done.value.seconds >= 0.0
     np.testing.assert_array_equal(jax.pmap(training_epoch)(np.ones((1, 3), np.float32)), 2.0)
+
+
+def test_a_failed_or_slow_compiling_process_is_one_line_and_the_chain_goes_on(tmp_path):
+    """The compiling process's failure or a wait past its limit is reported, never raised: the
+    fine-tune then compiles its programs itself."""
+    missing = tmp_path / "no_run"
+    failed = training.Precompile(missing, [], str(tmp_path / "xla"), tmp_path / "failed.log")
+    line = failed.finish(timeout_s=300)
+    assert line.startswith("compiling ahead failed (exit 2): ") and str(missing) in line, line
+    assert "\n" not in line
+    slow = training.Precompile(missing, [], str(tmp_path / "xla"), tmp_path / "slow.log")
+    line = slow.finish(timeout_s=0.01)  # python's start alone takes longer
+    assert line.startswith("compiling ahead: still running after 0 s, stopped"), line
+    assert slow.process.poll() is not None  # stopped, not left behind
