@@ -28,10 +28,13 @@ def split_overrides(overrides: list[str]) -> tuple[list[str], list[str]]:
     tune = ["--" + o[len(PREFIX) :] for o in overrides if o.startswith(PREFIX)]
     bad = [o for o in tune if not (o.startswith("--env.") or o.startswith("--ppo."))]
     if bad:
-        raise ValueError(
-            f"{PREFIX}KEY=V takes env. and ppo. keys: {', '.join('--finetune.' + b[2:] for b in bad)}"
-        )
+        raise ValueError(f"{PREFIX}KEY=V takes env. and ppo. keys: {', '.join(spelled(bad))}")
     return own, tune
+
+
+def spelled(overrides: list[str]) -> list[str]:
+    """The fine-tune's --env./--ppo. overrides as the command line spells them (--finetune.env.KEY=V)."""
+    return [PREFIX + o[2:] for o in overrides]
 
 
 def default_run_dir(run_dir: Path) -> Path:

@@ -199,7 +199,7 @@ def _run(args, overrides, stop) -> int:
         raise UsageError("--resume continues a run, --init-from starts a new one: give one of them")
     if args.compile_only:
         given = [f for f, on in (("--resume", args.resume), ("--run-dir", args.run_dir)) if on]
-        given += [finetune.PREFIX + o[2:] for o in args.finetune]
+        given += finetune.spelled(args.finetune)
         if given:
             raise UsageError(
                 f"--compile-only builds a new run's programs and writes no run: remove {' '.join(given)}"

@@ -116,7 +116,7 @@ def run_configs(args, overrides, primary: bool):
             if given
         ]
         if overrides or options or args.finetune:
-            given = " ".join([*options, *overrides, *(finetune.PREFIX + o[2:] for o in args.finetune)])
+            given = " ".join([*options, *overrides, *finetune.spelled(args.finetune)])
             raise UsageError(f"--resume takes the run's saved configs; remove {given}")
         run_dir = Path(args.resume)
         plan = finetune.recorded(run_dir)
