@@ -38,6 +38,7 @@ from quadson_mjx.env_model import (
     BASE_GEOM,
     base_bottom_points,
     check_floor_plane,
+    device_constant,
     feet_on_plane,
     home_contact_points,
     make_env_data,
@@ -107,7 +108,7 @@ class LocomotionEnv(Env):
         base_geom = int(name_ids(self._mj_model, mujoco.mjtObj.mjOBJ_GEOM, [BASE_GEOM])[0])
         if not np.allclose(self._mj_model.geom_quat[base_geom], (1, 0, 0, 0)):
             raise ValueError("base_collision must be aligned with the base body")
-        self._base_bottom = jnp.asarray(
+        self._base_bottom = device_constant(
             base_bottom_points(self._mj_model.geom_size[base_geom]) + self._mj_model.geom_pos[base_geom],
             jnp.float32,
         )  # (15, 3) base frame [m]
@@ -138,7 +139,7 @@ class LocomotionEnv(Env):
             if cfg.asymmetric_critic
             else None
         )
-        self._scan = jnp.asarray(
+        self._scan = device_constant(
             terrain.scan_offsets(cfg.critic_scan_points, cfg.critic_scan_spacing_m), jnp.float32
         )
         self._ctrl_dt = float(cfg.ctrl_dt)
@@ -146,24 +147,24 @@ class LocomotionEnv(Env):
 
         m = self._mj_model
         motor_joints = name_ids(m, mujoco.mjtObj.mjOBJ_JOINT, robot.motor_joints)
-        self._motor_qpos = jnp.asarray(m.jnt_qposadr[motor_joints])  # (12,) legs x motors order
+        self._motor_qpos = device_constant(m.jnt_qposadr[motor_joints])  # (12,) legs x motors order
         # (12,) ctrl index of each motor
-        self._actuator_of_motor = jnp.asarray(name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators))
+        self._actuator_of_motor = device_constant(name_ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, robot.actuators))
         self._base_body = int(name_ids(m, mujoco.mjtObj.mjOBJ_BODY, [robot.root_body])[0])
         key = int(name_ids(m, mujoco.mjtObj.mjOBJ_KEY, [robot.home_keyframe])[0])
-        self._home_qpos = jnp.asarray(m.key_qpos[key])
-        self._home_ctrl = jnp.asarray(m.key_ctrl[key])
+        self._home_qpos = device_constant(m.key_qpos[key])
+        self._home_ctrl = device_constant(m.key_ctrl[key])
         points, radius = home_contact_points(
             m, key, name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()), self._base_bottom
         )
-        self._contact_points = jnp.asarray(points, jnp.float32)  # (P, 3) from the base origin [m]
-        self._contact_radius = jnp.asarray(radius, jnp.float32)
+        self._contact_points = device_constant(points, jnp.float32)  # (P, 3) from the base origin [m]
+        self._contact_radius = device_constant(radius, jnp.float32)
         self._spawn_spheres, self._spawn_points = np.flatnonzero(radius > 0), np.flatnonzero(radius == 0)
-        self._home_feet = jnp.asarray(robot.home_feet, jnp.float32)  # (4, 3) gait frames [m]
+        self._home_feet = device_constant(robot.home_feet, jnp.float32)  # (4, 3) gait frames [m]
         self._gait = env_gait(cfg)
         self._seed_speed = float(gait.seed_speed(self._gait))
         self._forward_target = self._seed_speed if cfg.reward.target_gait_speed else cfg.reward.forward_target
-        self._foot_geoms = jnp.asarray(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
+        self._foot_geoms = device_constant(name_ids(m, mujoco.mjtObj.mjOBJ_GEOM, robot.foot_geoms()))
         self._warp_buffers, self._foot_sensors, self._feet_on_plane = None, None, False
         if cfg.impl == "warp":
             self._warp_buffers = warp_buffers(m, cfg.warp_max_worlds)
@@ -172,11 +173,11 @@ class LocomotionEnv(Env):
                 check_floor_plane(m)
             else:
                 sensors = name_ids(m, mujoco.mjtObj.mjOBJ_SENSOR, [f"{g}_ground" for g in robot.foot_geoms()])
-                self._foot_sensors = jnp.asarray(m.sensor_adr[sensors])
+                self._foot_sensors = device_constant(m.sensor_adr[sensors])
         # nominal values the privileged observation divides the randomized model's by
-        self._foot_radius = jnp.asarray(m.geom_size[np.asarray(self._foot_geoms), 0])
+        self._foot_radius = device_constant(m.geom_size[np.asarray(self._foot_geoms), 0])
         self._nominal_base_mass = float(m.body_mass[self._base_body])
-        self._nominal_gain = jnp.asarray(m.actuator_gainprm[np.asarray(self._actuator_of_motor), 0])
+        self._nominal_gain = device_constant(m.actuator_gainprm[np.asarray(self._actuator_of_motor), 0])
         root = int(m.body_jntadr[self._base_body])
         self._root_q = int(m.jnt_qposadr[root])
         self._root_v = int(m.jnt_dofadr[root])

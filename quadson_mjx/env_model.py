@@ -7,11 +7,13 @@ to MJX with the chosen implementation. Under MJX's Warp implementation the feet'
 from their height over the plane on the flat scene (`feet_on_plane`), else from contact sensors
 (`foot_contact_sensors`); its buffers are sized by `warp_buffers` and the reset's data is built
 from the MjModel (`make_env_data`); `check_warp_ground` refuses the get-up task on a height field.
-`name_ids` looks names up once (Python never hard-codes a model index).
+`name_ids` looks names up once (Python never hard-codes a model index); `device_constant` puts an
+environment's constants on the device without compiling a program for each.
 """
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -27,6 +29,15 @@ BASE_GEOM = "base_collision"  # the base's box, every robot's
 # a contact sensor's intprm: its data (mjtConDataField bits: 1 = "found"), its reduction (1 =
 # "mindist"), its number of contacts
 CONTACT_FOUND, REDUCE_MINDIST = 1, 1
+
+
+def device_constant(x, dtype=None) -> jax.Array:
+    """x (a numpy array or a sequence) converted on the host to `dtype` (default: JAX's canonical
+    dtype of x: float32, int32 without x64) and put on the default device. jnp.asarray converts in a
+    small device program instead, one per new shape and dtype: about 0.1 s each to compile on a GPU,
+    and an environment's constructor made about 15 of them."""
+    a = np.asarray(x)
+    return jax.device_put(a.astype(dtype or jax.dtypes.canonicalize_dtype(a.dtype), copy=False))
 
 
 def name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray:

@@ -7,6 +7,8 @@ model has a leading batch axis on exactly the randomized fields, and in_axes mar
 
 from __future__ import annotations
 
+import functools
+
 import jax
 from mujoco import mjx
 
@@ -41,44 +43,56 @@ def randomize(model: mjx.Model, rng: jax.Array, ranges, base_body: int = 1) -> t
     factor U(mass_scale) per body (inertia scaled with it), every servo's kp (gain and bias) and force
     range scaled by one factor U(motor_strength) per motor, the base's centre of mass moved along body
     x by U(base_com_shift_m) (the model's +5 cm CoM is an assumption, models/quadson/README.md).
+
+    The draws are one jitted program (brax calls this eagerly, once for the training environments and
+    once for the evaluator's: op by op, that was about 45 small programs to compile).
     """
-
-    @jax.vmap
-    def one(key):
-        k_f, k_m, k_s, k_c = jax.random.split(key, 4)
-        friction = jax.random.uniform(k_f, (), minval=ranges.friction[0], maxval=ranges.friction[1])
-        geom_friction = model.geom_friction.at[:, 0].set(friction)
-        scale = jax.random.uniform(
-            k_m, (model.nbody,), minval=ranges.mass_scale[0], maxval=ranges.mass_scale[1]
-        )
-        body_mass = model.body_mass * scale
-        body_inertia = model.body_inertia * scale[:, None]
-        strength = jax.random.uniform(
-            k_s, (model.nu,), minval=ranges.motor_strength[0], maxval=ranges.motor_strength[1]
-        )
-        gain = model.actuator_gainprm.at[:, 0].multiply(strength)
-        bias = model.actuator_biasprm.at[:, 1].multiply(strength)
-        force = model.actuator_forcerange * strength[:, None]
-        shift = jax.random.uniform(
-            k_c, (), minval=ranges.base_com_shift_m[0], maxval=ranges.base_com_shift_m[1]
-        )
-        body_ipos = model.body_ipos.at[base_body, 0].add(shift)
-        return geom_friction, body_mass, body_inertia, gain, bias, force, body_ipos
-
-    geom_friction, body_mass, body_inertia, gain, bias, force, body_ipos = one(rng)
-    fields = {
-        "geom_friction": geom_friction,
-        "body_mass": body_mass,
-        "body_inertia": body_inertia,
-        "actuator_gainprm": gain,
-        "actuator_biasprm": bias,
-        "actuator_forcerange": force,
-        "body_ipos": body_ipos,
-    }
+    bounds = tuple(
+        (float(lo), float(hi))
+        for lo, hi in (ranges.friction, ranges.mass_scale, ranges.motor_strength, ranges.base_com_shift_m)
+    )
+    fields = _draw({k: getattr(model, k) for k in RANDOMIZED_FIELDS}, rng, bounds, int(base_body))
     batched = model.tree_replace(fields)
     in_axes = jax.tree.map(lambda _: None, model)
     in_axes = in_axes.tree_replace({k: 0 for k in fields})
     return batched, in_axes
+
+
+# the mjx.Model fields that randomize() batches (in_axes 0)
+RANDOMIZED_FIELDS = (
+    "geom_friction",
+    "body_mass",
+    "body_inertia",
+    "actuator_gainprm",
+    "actuator_biasprm",
+    "actuator_forcerange",
+    "body_ipos",
+)
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _draw(nominal: dict, rng: jax.Array, bounds: tuple, base_body: int) -> dict:
+    """nominal: RANDOMIZED_FIELDS of the model; rng: (B, 2) keys; bounds: (lo, hi) of friction,
+    mass_scale, motor_strength, base_com_shift_m -> the fields with a leading batch axis B."""
+    (f_lo, f_hi), (m_lo, m_hi), (s_lo, s_hi), (c_lo, c_hi) = bounds
+
+    def one(key):
+        k_f, k_m, k_s, k_c = jax.random.split(key, 4)
+        friction = jax.random.uniform(k_f, (), minval=f_lo, maxval=f_hi)
+        scale = jax.random.uniform(k_m, nominal["body_mass"].shape, minval=m_lo, maxval=m_hi)
+        strength = jax.random.uniform(k_s, nominal["actuator_gainprm"].shape[:1], minval=s_lo, maxval=s_hi)
+        shift = jax.random.uniform(k_c, (), minval=c_lo, maxval=c_hi)
+        return {
+            "geom_friction": nominal["geom_friction"].at[:, 0].set(friction),
+            "body_mass": nominal["body_mass"] * scale,
+            "body_inertia": nominal["body_inertia"] * scale[:, None],
+            "actuator_gainprm": nominal["actuator_gainprm"].at[:, 0].multiply(strength),
+            "actuator_biasprm": nominal["actuator_biasprm"].at[:, 1].multiply(strength),
+            "actuator_forcerange": nominal["actuator_forcerange"] * strength[:, None],
+            "body_ipos": nominal["body_ipos"].at[base_body, 0].add(shift),
+        }
+
+    return jax.vmap(one)(rng)
 
 
 def randomization_fn(ranges, base_body: int):

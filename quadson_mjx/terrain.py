@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -44,10 +45,11 @@ def heightfield(mj_model: mujoco.MjModel) -> Heightfield | None:
     adr = int(mj_model.hfield_adr[h])
     size = mj_model.hfield_size[h]
     data = np.asarray(mj_model.hfield_data[adr : adr + nrow * ncol]).reshape(nrow, ncol)
+    # converted on the host: jnp.asarray would compile a device program for each (measured on CPU)
     return Heightfield(
-        heights=jnp.asarray(data * size[2], jnp.float32),
-        half_size=jnp.asarray(size[:2], jnp.float32),
-        origin=jnp.asarray(mj_model.geom_pos[geom], jnp.float32),
+        heights=jax.device_put(np.asarray(data * size[2], np.float32)),
+        half_size=jax.device_put(np.asarray(size[:2], np.float32)),
+        origin=jax.device_put(np.asarray(mj_model.geom_pos[geom], np.float32)),
     )
 
 

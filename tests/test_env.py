@@ -290,3 +290,31 @@ def test_base_terrain_contact_off_leaves_only_the_feet():
         assert contact.dist.shape == (slots,)
         geom = mujoco.mj_name2id(e.mj_model, mujoco.mjtObj.mjOBJ_GEOM, "base_collision")
         assert bool(e.mj_model.geom_conaffinity[geom]) is on
+
+
+def test_device_constants_convert_on_the_host():
+    """env_model.device_constant: the values as jnp.asarray gives them (canonical dtype: float32,
+    int32), on the default device, without compiling a device program (jnp.asarray compiles one per
+    new shape and dtype); an explicit dtype is honoured."""
+    from jax._src import monitoring
+
+    from quadson_mjx.env_model import device_constant
+
+    compiled = []
+
+    def on_compile(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    values = (np.linspace(0.1, 0.7, 13), np.arange(11), [1.5, 2.5], np.ones((3, 7), np.float64))
+    jax.monitoring.register_event_duration_secs_listener(on_compile)
+    try:
+        got = [device_constant(v) for v in values] + [device_constant(np.arange(5), jnp.float32)]
+    finally:
+        monitoring.unregister_event_duration_listener(on_compile)
+    assert compiled == []
+    for v, g in zip(values, got, strict=False):
+        want = jnp.asarray(v)
+        assert isinstance(g, jax.Array) and g.dtype == want.dtype and g.devices() == want.devices()
+        np.testing.assert_array_equal(np.asarray(g), np.asarray(want))
+    assert got[-1].dtype == jnp.float32 and np.asarray(got[-1]).tolist() == [0, 1, 2, 3, 4]

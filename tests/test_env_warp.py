@@ -17,6 +17,7 @@ from quadson_mjx.config import apply_overrides
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.env_config import env_config
 from quadson_mjx.env_model import warp_buffers
+from quadson_mjx.randomize import RANDOMIZED_FIELDS
 from quadson_mjx.wrappers import wrap_for_evaluation
 
 WORLDS = 2  # stepped
@@ -140,15 +141,7 @@ def test_a_randomized_model_per_world_under_warp_matches_mujoco_c():
     action = 0.5 * jax.random.normal(jax.random.PRNGKey(1), (WORLDS, env.action_size))
     s1 = jax.jit(wrapped.step)(s0, action)
     dr = wrapped.env.env  # the DomainRandomizationVmapWrapper, holding each world's model
-    fields = (
-        "geom_friction",
-        "body_mass",
-        "body_inertia",
-        "actuator_gainprm",
-        "actuator_biasprm",
-        "actuator_forcerange",
-        "body_ipos",
-    )
+    fields = RANDOMIZED_FIELDS
     masses = np.asarray(dr._sys_v.body_mass)
     assert np.abs(masses[0] - masses[1]).max() > 1e-4  # the worlds' models differ
     for w in range(WORLDS):

@@ -89,3 +89,55 @@ def test_nominal_range_overrides_keep_the_named_range():
     assert not any(o.startswith("randomization.friction=") for o in kept) and len(kept) == 4
     with pytest.raises(ValueError, match="no randomization range"):
         nominal_range_overrides(keep=("fricton",))
+
+
+def test_draws_follow_the_documented_formula_in_one_program():
+    """Each environment's fields, recomputed in numpy from the same keys split as documented (friction,
+    masses, motors, centre of mass), equal the jitted draws exactly; a new batch size compiles one
+    program (op by op it was about 24)."""
+    env = LocomotionEnv(env_config(randomize=True))
+    r, sys, base = env.config.randomization, env.sys, env.base_body
+    rng = jax.random.split(jax.random.PRNGKey(7), 5)
+    compiled = []
+
+    def on_compile(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(on_compile)
+    try:
+        model, _ = randomize(sys, rng, r, base)
+    finally:
+        from jax._src import monitoring
+
+        monitoring.unregister_event_duration_listener(on_compile)
+    assert len(compiled) == 1, compiled
+    for b in range(5):
+        k_f, k_m, k_s, k_c = jax.random.split(rng[b], 4)
+        friction = float(jax.random.uniform(k_f, (), minval=r.friction[0], maxval=r.friction[1]))
+        scale = np.asarray(
+            jax.random.uniform(k_m, (sys.nbody,), minval=r.mass_scale[0], maxval=r.mass_scale[1])
+        )
+        strength = np.asarray(
+            jax.random.uniform(k_s, (sys.nu,), minval=r.motor_strength[0], maxval=r.motor_strength[1])
+        )
+        shift = float(jax.random.uniform(k_c, (), minval=r.base_com_shift_m[0], maxval=r.base_com_shift_m[1]))
+        want = {
+            "geom_friction": np.concatenate(
+                [np.full((sys.ngeom, 1), friction, np.float32), np.asarray(sys.geom_friction)[:, 1:]], axis=1
+            ),
+            "body_mass": np.asarray(sys.body_mass) * scale,
+            "body_inertia": np.asarray(sys.body_inertia) * scale[:, None],
+            "actuator_forcerange": np.asarray(sys.actuator_forcerange) * strength[:, None],
+        }
+        gain, bias, ipos = (
+            np.array(sys.actuator_gainprm),
+            np.array(sys.actuator_biasprm),
+            np.array(sys.body_ipos),
+        )
+        gain[:, 0] *= strength
+        bias[:, 1] *= strength
+        ipos[base, 0] += np.float32(shift)
+        want.update(actuator_gainprm=gain, actuator_biasprm=bias, body_ipos=ipos)
+        for field, value in want.items():
+            np.testing.assert_array_equal(np.asarray(getattr(model, field))[b], value, err_msg=field)
