@@ -37,7 +37,9 @@ def device_constant(x, dtype=None) -> jax.Array:
     small device program instead, one per new shape and dtype: about 0.1 s each to compile on a GPU,
     and an environment's constructor made about 15 of them."""
     a = np.asarray(x)
-    return jax.device_put(a.astype(dtype or jax.dtypes.canonicalize_dtype(a.dtype), copy=False))
+    return jax.device_put(
+        a.astype(jax.dtypes.canonicalize_dtype(a.dtype) if dtype is None else dtype, copy=False)
+    )
 
 
 def name_ids(model: mujoco.MjModel, objtype: mujoco.mjtObj, names) -> np.ndarray:
