@@ -244,7 +244,7 @@ def test_curriculum_summary_by_hand():
 def test_tiles_evaluation_of_the_gait_alone():
     """evaluate_tiles with a zero policy (the gait alone) standing on two tile types x two levels:
     one row per tile with its robots; standing asks for no distance, so every robot that did not
-    fall succeeds; the gait stepping in place tracks vx = 0 within 0.1 m/s. Bad requests refused."""
+    fall succeeds; the gait stepping in place tracks vx = 0 within 0.12 m/s. Bad requests refused."""
     from quadson_mjx import tiles_eval
     from quadson_mjx.stats import success_interval
 
@@ -268,7 +268,9 @@ def test_tiles_evaluation_of_the_gait_alone():
         assert lo <= r["success"] <= hi and r["success_95"] == success_interval(
             r["robots"] - r["falls"], r["robots"]
         )
-    assert rows[0]["falls"] == 0 and rows[0]["rms_vx"] < 0.1
+    # 0.092, 0.108 and 0.104 m/s with XLA's CPU code for SSE4.2, AVX2 and AVX-512
+    # (XLA_FLAGS=--xla_cpu_max_isa=...): two robots for 1.5 s amplify the rounding's differences
+    assert rows[0]["falls"] == 0 and rows[0]["rms_vx"] < 0.12
     with pytest.raises(ValueError, match="lava"):
         tiles_eval.evaluate_tiles(env_cfg, policy, [0], 1, 1.5, types=["lava"])
     with pytest.raises(ValueError, match="levels"):
