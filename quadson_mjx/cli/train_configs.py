@@ -35,6 +35,23 @@ def task_flags_given(args) -> list[str]:
     ]
 
 
+# the flags that set a new run's configs, in the order a refusal names them
+CONFIG_FLAGS = ("task", "gait", "gait_action", "env_preset", "terrain", "robot", "preset")
+
+
+def config_flags_given(args, defaults_allowed: bool) -> list[str]:
+    """The CONFIG_FLAGS the command line set, as "--name"; with defaults_allowed a task flag at its
+    default (TASK_FLAG_DEFAULTS: --robot quadson, --env-preset seed, --terrain flat) is not counted."""
+
+    def given(key):
+        value = getattr(args, key)
+        if key == "gait_action":  # a switch
+            return bool(value)
+        return value is not None and not (defaults_allowed and value == TASK_FLAG_DEFAULTS.get(key))
+
+    return [f"--{key.replace('_', '-')}" for key in CONFIG_FLAGS if given(key)]
+
+
 def list_tasks() -> str:
     """One line per task: its name and the flags that spell the same config."""
     width = max(map(len, tasks.task_names()))
@@ -64,19 +81,7 @@ def new_run_configs(env_cfg, ppo_cfg, overrides, run_dir, primary: bool):
 
 def init_configs(args, overrides, primary: bool):
     """--init-from: the source run's configs with the overrides -> (env_cfg, ppo_cfg, run_dir)."""
-    flags = [
-        name
-        for name, given in (
-            ("--task", args.task is not None),
-            ("--gait", args.gait is not None),
-            ("--gait-action", args.gait_action),
-            ("--env-preset", args.env_preset is not None),
-            ("--terrain", args.terrain is not None),
-            ("--robot", args.robot is not None),
-            ("--preset", args.preset is not None),
-        )
-        if given
-    ]
+    flags = config_flags_given(args, defaults_allowed=False)
     if flags:
         given = " ".join(flags)
         raise UsageError(
@@ -100,16 +105,9 @@ def run_configs(args, overrides, primary: bool):
         env_cfg, ppo_cfg, run_dir = init_configs(args, overrides, primary)
     elif args.resume:
         # what would change the configs: the saved ones rule, so each is refused rather than ignored
-        options = [
+        options = config_flags_given(args, defaults_allowed=True) + [
             name
             for name, given in (
-                ("--task", args.task is not None),
-                ("--gait", args.gait is not None),
-                ("--gait-action", args.gait_action),
-                ("--env-preset", args.env_preset not in (None, "seed")),
-                ("--terrain", args.terrain not in (None, "flat")),
-                ("--robot", args.robot not in (None, "quadson")),
-                ("--preset", args.preset is not None),
                 ("--run-dir", args.run_dir is not None),
                 ("--finetune-run-dir", args.finetune_run_dir is not None),
             )
