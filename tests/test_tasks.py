@@ -169,6 +169,10 @@ COMMITTED_RUNS = {
         "QuadsonJoystickRough",
         [*C048_HFC1, "sim_dt=0.0025", "reward.weights.ang_vel_tracking_exp=2.0"],
     ),
+    # two more first stages of that chain (seeds 1 and 2, no evaluations), kept as starting points
+    # for fine-tune experiments: their sweeps' yaw rates (0.193, 0.202) are the chain's worst seen
+    "results/policy_h200_sensors_e16u10/comparison/chain_yaw2ent_dt25_48m_seed1": ("QuadsonJoystickRough", C048_HFC1),
+    "results/policy_h200_sensors_e16u10/comparison/chain_yaw2ent_dt25_48m_seed2": ("QuadsonJoystickRough", C048_HFC1),
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
