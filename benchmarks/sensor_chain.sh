@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# The sensor-only joystick recipe's two stages as one command (docs/results.md, "One command for
+# both stages"), several variants at once, one per GPU, each from an empty compilation cache and
+# timed from launch to exit; then each fine-tuned policy on the issue's sweep on the same GPU (2 ms,
+# the stones, randomized, sensor errors and pushes, 75 commands x 4 environments x 20 s).
+# Usage: bash benchmarks/sensor_chain.sh OUT_DIR "NAME:ARGS" ... (one variant per GPU; ARGS are added
+# to the chain's command, --finetune.KEY=VALUE for the fine-tune alone):
+#   bash benchmarks/sensor_chain.sh results/policy_h200_sensors_e16u10/comparison \
+#       "chain_s1dt5_a:--env.sim_dt=0.005" "chain_s1dt5_b:--env.sim_dt=0.005"
+# OUT_DIR/NAME/ gets the first stage's run (config, MCAP log, its newest checkpoint), the console
+# with the command's wall clock (train_console.log), finetune/ (the same) and eval_dt2.{json,log}.
+# STAGE1_STEPS, FT_STEPS, ENVS, BATCH and SWEEP (the sweep's --seconds and --replicas) change the
+# defaults; a quick try on the CPU (no GPU: the variants share it):
+#   ENVS=16 BATCH=16 STAGE1_STEPS=20480 FT_STEPS=20480 SWEEP="--seconds 1.2 --replicas 1" bash ...
+set -u
+out=${1:?usage: sensor_chain.sh OUT_DIR NAME:ARGS [NAME:ARGS ...]}
+shift
+[ $# -gt 0 ] || { echo "error: name at least one variant, NAME:ARGS" >&2; exit 2; }
+n_gpus=$(nvidia-smi -L 2>/dev/null | grep -c '^GPU')
+[ "$n_gpus" -eq 0 ] || [ $# -le "$n_gpus" ] || { echo "error: $# variants for $n_gpus GPUs: one a GPU" >&2; exit 2; }
+for v in "$@"; do
+  name=${v%%:*}
+  [[ $v == *:* && $name =~ ^[A-Za-z0-9_.-]+$ ]] || { echo "error: variant '$v' is not NAME:ARGS" >&2; exit 2; }
+  [ ! -e "$out/$name" ] || { echo "error: $out/$name exists; choose another name" >&2; exit 2; }
+done
+mkdir -p "$out"
+recipe="--task QuadsonJoystickRough --env.obs_history=3 --env.yaw_error_tau_s=0.5 --env.reward.tracking_sigma=0.15
+  --env.reward.weights.ang_vel_tracking_exp=1.0 --env.gait_scale.cycle_s=0.6 --env.impl=jax
+  --ppo.num_envs=${ENVS:-16384} --ppo.batch_size=${BATCH:-2048} --ppo.unroll_length=10 --ppo.num_timesteps=${STAGE1_STEPS:-315392000}
+  --ppo.num_evals=12 --ppo.run_evals=false --finetune.env.sim_dt=0.0025 --finetune.ppo.learning_rate=0.0003
+  --finetune.ppo.num_timesteps=${FT_STEPS:-48000000} --finetune.ppo.num_evals=4
+  --finetune.env.reward.weights.ang_vel_tracking_exp=2.0"
+
+one() {  # gpu name args
+  local gpu=$1 args=$3 dir=$out/$2 log
+  log=$(mktemp)
+  local cache
+  cache=$(mktemp -d)
+  local t0
+  t0=$(date +%s.%N)
+  # shellcheck disable=SC2086  # recipe and args hold several words
+  CUDA_VISIBLE_DEVICES=$gpu python3 train/ppo_mjx.py $recipe $args --compile-cache "$cache" \
+    --run-dir "$dir" --finetune-run-dir "$dir/finetune" > "$log" 2>&1
+  local rc=$?
+  printf '\n# the command'"'"'s wall clock (bash, around the process): exit %d wall %.1f s\n' \
+    "$rc" "$(python3 -c "import time; print(time.time() - $t0)")" >> "$log"
+  mkdir -p "$dir" && mv "$log" "$dir/train_console.log"
+  rm -rf "$cache"
+  for ck in "$dir/checkpoints" "$dir/finetune/checkpoints"; do  # each stage's newest checkpoint only
+    [ -d "$ck" ] || continue
+    last=$(find "$ck" -name 'step_*.msgpack' | sort | tail -1)
+    find "$ck" \( -name 'step_*.msgpack' -o -name 'state_*.npz' \) ! -path "$last" -exec rm -f {} {}.sha256 \;
+  done
+  [ "$rc" -eq 0 ] || return
+  # shellcheck disable=SC2086  # SWEEP holds several words
+  CUDA_VISIBLE_DEVICES=$gpu python3 -m quadson_mjx.cli.policy_eval ${SWEEP:---seconds 20 --replicas 4} --terrain rough \
+    --env.sim_dt=0.002 --policy "$dir/finetune" --out "$dir/eval_dt2.json" > "$dir/eval_dt2.log" 2>&1
+}
+
+gpu=0
+for v in "$@"; do
+  one "$gpu" "${v%%:*}" "${v#*:}" &
+  gpu=$((gpu + 1))
+done
+wait
+for v in "$@"; do
+  dir=$out/${v%%:*}
+  echo "== ${v%%:*}: $(tail -1 "$dir/train_console.log")"
+  [ -f "$dir/eval_dt2.log" ] && grep -v 'Delay kernel' "$dir/eval_dt2.log"
+done
