@@ -1,10 +1,12 @@
 """The training physics at coarser steps: is a policy's closed chain still closed, and does it walk?
 
-    python benchmarks/physics_step_check.py [--run RUN] [--dt 0.002 0.004 0.005] [--every 5] [--seconds 6]
+    python benchmarks/physics_step_check.py [--run RUN] [--dt 0.002 0.004 0.005] [--every 5]
+        [--seconds 6]
 
 Runs a committed policy in its own training environment (MJX, the stones, one randomized model per
-environment, sensor errors and pushes as its config has them) at each physics step given, under every
-`--every`-th command of the joystick sweep (15 of its 75 by default), one environment each. Prints one JSON line per step:
+environment, sensor errors and pushes as its config has them) at each physics step given, under
+every `--every`-th command of the joystick sweep (15 of its 75 by default), one environment each.
+Prints one JSON line per step:
 - the five-bar closure gap over every leg and control step: median, 99th percentile and largest [mm];
 - control steps with the base below the ground, non-finite resets, environments that fell;
 - RMS tracking error vx / vy [m/s] and yaw rate [rad/s] after the first second.
@@ -24,7 +26,7 @@ from quadson_mjx import rollout as R
 from quadson_mjx.commands import sweep_commands
 from quadson_mjx.env import LocomotionEnv
 from quadson_mjx.errors import ArgumentParser, UsageError, one_line_errors
-from quadson_mjx.policy_eval import SETTLE_S, eval_config, load_source
+from quadson_mjx.policy_eval import eval_config, load_source, tracking_sums
 
 
 def check(policy, env_cfg, sim_dt: float, commands: np.ndarray, seconds: float, seed: int) -> dict:
@@ -49,10 +51,9 @@ def check(policy, env_cfg, sim_dt: float, commands: np.ndarray, seconds: float, 
         below += int(traj.base_below_terrain.sum())
         nan += int(traj.nan_reset.sum())
         fell |= traj.fall.any(axis=0)
-        measured = np.stack([traj.lin_vel[..., 0], traj.lin_vel[..., 1], traj.ang_vel[..., 2]], -1)
-        keep = (traj.episode_step * env.ctrl_dt > SETTLE_S) & ~traj.done
-        sq += np.sum(np.where(keep[..., None], np.square(measured - traj.command), 0.0), axis=(0, 1))
-        kept += int(keep.sum())
+        sq_seg, kept_seg = tracking_sums(traj, env.ctrl_dt)
+        sq += sq_seg.sum(axis=0)
+        kept += int(kept_seg.sum())
     gap_mm = np.concatenate(gaps) * 1e3
     rms = np.sqrt(sq / max(kept, 1))
     return {

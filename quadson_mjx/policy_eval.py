@@ -70,6 +70,16 @@ def load_source(source):
     return load_policy(path)
 
 
+def tracking_sums(traj, ctrl_dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """A host Trajectory [T, B] -> (B, 3) summed squared errors of vx, vy [m/s] and yaw rate [rad/s]
+    against the command, and (B,) the steps they sum: every step past the first SETTLE_S seconds
+    of its episode, the step that ends an episode left out."""
+    measured = np.stack([traj.lin_vel[..., 0], traj.lin_vel[..., 1], traj.ang_vel[..., 2]], -1)
+    keep = (traj.episode_step * ctrl_dt > SETTLE_S) & ~traj.done  # (T, B)
+    sq = np.sum(np.where(keep[..., None], np.square(measured - traj.command), 0.0), axis=0)
+    return sq, keep.sum(axis=0)
+
+
 def evaluate_one(
     run_dir,
     commands: np.ndarray,
@@ -106,10 +116,9 @@ def evaluate_one(
         command=np.asarray(commands, np.float32),
         randomize=bool(cfg.randomize),
     ):
-        measured = np.stack([traj.lin_vel[..., 0], traj.lin_vel[..., 1], traj.ang_vel[..., 2]], -1)
-        keep = (traj.episode_step * env.ctrl_dt > SETTLE_S) & ~traj.done  # (T, B)
-        sq += np.sum(np.where(keep[..., None], np.square(measured - traj.command), 0.0), axis=0)
-        kept += keep.sum(axis=0)
+        sq_seg, kept_seg = tracking_sums(traj, env.ctrl_dt)
+        sq += sq_seg
+        kept += kept_seg
         fell |= traj.fall.any(axis=0)
         off |= traj.off_field.any(axis=0)
     rms = np.sqrt(sq.sum(axis=0) / max(kept.sum(), 1))

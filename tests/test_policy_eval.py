@@ -9,7 +9,7 @@ import pytest
 from quadson_mjx import tasks
 from quadson_mjx.cli import policy_eval as cli
 from quadson_mjx.env import LocomotionEnv
-from quadson_mjx.policy_eval import fed_velocity
+from quadson_mjx.policy_eval import SETTLE_S, fed_velocity, tracking_sums
 
 
 @pytest.fixture(scope="module")
@@ -181,3 +181,26 @@ def test_the_five_bar_model_is_an_evaluation_condition(monkeypatch):
         return np.asarray([m.key("home").qpos[m.jnt_qposadr[m.joint(j).id]] for j in joints])
 
     np.testing.assert_allclose(home(light.mj_model), home(full.mj_model), atol=1e-9)
+
+
+def test_tracking_sums_leave_out_the_first_second_and_the_ending_step():
+    """Two environments, 4 control steps of 0.5 s (hand arithmetic): only steps past SETTLE_S (1 s) of
+    their episode count, and a step that ends an episode does not."""
+    from types import SimpleNamespace
+
+    assert SETTLE_S == 1.0
+    episode_step = np.array([[1, 1], [2, 2], [3, 3], [4, 1]])  # env 1 restarted at the last step
+    done = np.array([[0, 0], [0, 0], [0, 1], [0, 0]], bool)
+    lin_vel = np.zeros((4, 2, 3))
+    lin_vel[..., 0] = [[9.0, 9.0], [9.0, 9.0], [0.5, 0.7], [0.1, 9.0]]  # vx
+    lin_vel[..., 1] = 0.2  # vy
+    ang_vel = np.zeros((4, 2, 3))
+    ang_vel[..., 2] = -0.3  # yaw rate
+    command = np.broadcast_to(np.array([0.3, 0.0, 0.0]), (4, 2, 3))
+    traj = SimpleNamespace(
+        episode_step=episode_step, done=done, lin_vel=lin_vel, ang_vel=ang_vel, command=command
+    )
+    sq, kept = tracking_sums(traj, ctrl_dt=0.5)
+    # env 0 keeps steps 3 and 4 (1.5 s, 2 s): vx errors 0.2 and -0.2; env 1 keeps none (its step 3 ends it)
+    np.testing.assert_array_equal(kept, [2, 0])
+    np.testing.assert_allclose(sq, [[0.08, 0.08, 0.18], [0.0, 0.0, 0.0]], atol=1e-12)
