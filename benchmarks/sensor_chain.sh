@@ -1,16 +1,17 @@
 #!/usr/bin/env bash
-# The sensor-only joystick recipe's two stages as one command (docs/results.md, "One command for
-# both stages"), several variants at once, one per GPU, each from an empty compilation cache and
-# timed from launch to exit; then each fine-tuned policy on the issue's sweep on the same GPU (2 ms,
-# the stones, randomized, sensor errors and pushes, 75 commands x 4 environments x 20 s).
+# The sensor-only joystick recipe's two stages as one command (train/recipes/joystick_10min.args;
+# docs/results.md, "A first stage at 5 ms"), several variants at once, one per GPU, each from an
+# empty compilation cache and timed from launch to exit; then each fine-tuned policy on the issue's
+# sweep on the same GPU (2 ms, the stones, randomized, sensor errors and pushes, 75 commands x 4
+# environments x 20 s).
 # Usage: bash benchmarks/sensor_chain.sh OUT_DIR "NAME:ARGS" ... (one variant per GPU; ARGS are added
 # to the chain's command, --finetune.KEY=VALUE for the fine-tune alone):
 #   bash benchmarks/sensor_chain.sh results/policy_h200_sensors_e16u10/comparison \
-#       "chain_s1dt5_a:--env.sim_dt=0.005" "chain_s1dt5_b:--env.sim_dt=0.005"
+#       "chain_a:--ppo.seed=5" "chain_b:--ppo.seed=6 --finetune.ppo.num_timesteps=48000000 --finetune.ppo.num_evals=4"
 # OUT_DIR/NAME/ gets the first stage's run (config, MCAP log, its newest checkpoint), the console
 # with the command's wall clock (train_console.log), finetune/ (the same) and eval_dt2.{json,log}.
-# STAGE1_STEPS, FT_STEPS, ENVS, BATCH and SWEEP (the sweep's --seconds and --replicas) change the
-# defaults; a quick try on the CPU (no GPU: the variants share it):
+# STAGE1_STEPS, FT_STEPS, ENVS, BATCH and SWEEP (the sweep's --seconds and --replicas; none: no
+# sweep) change the recipe's; a quick try on the CPU (no GPU: the variants share it):
 #   ENVS=16 BATCH=16 STAGE1_STEPS=20480 FT_STEPS=20480 SWEEP="--seconds 1.2 --replicas 1" bash ...
 set -u
 out=${1:?usage: sensor_chain.sh OUT_DIR NAME:ARGS [NAME:ARGS ...]}
@@ -24,12 +25,11 @@ for v in "$@"; do
   [ ! -e "$out/$name" ] || { echo "error: $out/$name exists; choose another name" >&2; exit 2; }
 done
 mkdir -p "$out"
-recipe="--task QuadsonJoystickRough --env.obs_history=3 --env.yaw_error_tau_s=0.5 --env.reward.tracking_sigma=0.15
-  --env.reward.weights.ang_vel_tracking_exp=1.0 --env.gait_scale.cycle_s=0.6 --env.impl=jax
-  --ppo.num_envs=${ENVS:-16384} --ppo.batch_size=${BATCH:-2048} --ppo.unroll_length=10 --ppo.num_timesteps=${STAGE1_STEPS:-315392000}
-  --ppo.num_evals=12 --ppo.run_evals=false --finetune.env.sim_dt=0.0025 --finetune.ppo.learning_rate=0.0003
-  --finetune.ppo.num_timesteps=${FT_STEPS:-48000000} --finetune.ppo.num_evals=4
-  --finetune.env.reward.weights.ang_vel_tracking_exp=2.0"
+recipe="@train/recipes/joystick_10min.args"  # the recipe's flags, then the changes asked for
+for kv in ENVS:ppo.num_envs BATCH:ppo.batch_size STAGE1_STEPS:ppo.num_timesteps FT_STEPS:finetune.ppo.num_timesteps; do
+  var=${kv%%:*}
+  [ -z "${!var:-}" ] || recipe+=" --${kv#*:}=${!var}"
+done
 
 one() {  # gpu name args
   local gpu=$1 args=$3 dir=$out/$2 log
@@ -51,7 +51,7 @@ one() {  # gpu name args
     last=$(find "$ck" -name 'step_*.msgpack' | sort | tail -1)
     find "$ck" \( -name 'step_*.msgpack' -o -name 'state_*.npz' \) ! -path "$last" -exec rm -f {} {}.sha256 \;
   done
-  [ "$rc" -eq 0 ] || return
+  [ "$rc" -eq 0 ] && [ "${SWEEP:-}" != none ] || return
   # shellcheck disable=SC2086  # SWEEP holds several words
   CUDA_VISIBLE_DEVICES=$gpu python3 -m quadson_mjx.cli.policy_eval ${SWEEP:---seconds 20 --replicas 4} --terrain rough \
     --env.sim_dt=0.002 --policy "$dir/finetune" --out "$dir/eval_dt2.json" > "$dir/eval_dt2.log" 2>&1

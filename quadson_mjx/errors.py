@@ -39,6 +39,11 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message):
         raise UsageError(f"{message} (see {self.prog} --help)")
 
+    def convert_arg_line_to_args(self, arg_line):
+        """A line of an @file (a parser made with fromfile_prefix_chars="@"): its words, up to a '#'
+        that starts a comment."""
+        return arg_line.split("#", 1)[0].split()
+
 
 def one_line(exc: BaseException) -> str:
     """The first line of an exception's message (its type's name when it has none)."""

@@ -171,8 +171,26 @@ COMMITTED_RUNS = {
     ),
     # two more first stages of that chain (seeds 1 and 2, no evaluations), kept as starting points
     # for fine-tune experiments: their sweeps' yaw rates (0.193, 0.202) are the chain's worst seen
-    "results/policy_h200_sensors_e16u10/comparison/chain_yaw2ent_dt25_48m_seed1": ("QuadsonJoystickRough", C048_HFC1),
-    "results/policy_h200_sensors_e16u10/comparison/chain_yaw2ent_dt25_48m_seed2": ("QuadsonJoystickRough", C048_HFC1),
+    "results/policy_h200_sensors_e16u10/comparison/chain_yaw2ent_dt25_48m_seed1": (
+        "QuadsonJoystickRough",
+        C048_HFC1,
+    ),
+    "results/policy_h200_sensors_e16u10/comparison/chain_yaw2ent_dt25_48m_seed2": (
+        "QuadsonJoystickRough",
+        C048_HFC1,
+    ),
+    # the chain with its first stage at a 5 ms physics step and a 64M-step fine-tune (seeds 3 and 4):
+    # both stages kept, the fine-tunes for the sim-to-sim runs
+    **{
+        f"results/policy_h200_sensors_e16u10/comparison/chain_s1dt5_315m_ft64m_seed{s}{ft}": (
+            "QuadsonJoystickRough",
+            [*C048_HFC1, "sim_dt=0.0025", "reward.weights.ang_vel_tracking_exp=2.0"]
+            if ft
+            else [*C048_HFC1, "sim_dt=0.005"],
+        )
+        for s in (3, 4)
+        for ft in ("", "/finetune")
+    },
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
@@ -619,3 +637,33 @@ def test_committed_fine_tunes_name_a_committed_checkpoint_by_its_hash():
 def test_every_committed_run_is_listed():
     found = {str(p.parent.relative_to(ROOT)) for p in ROOT.glob("results/**/config.json")}
     assert found == set(COMMITTED_RUNS)
+
+
+# the recipe file of the sensor-only joystick policy inside ten minutes, and a committed run of it
+RECIPE_10MIN = ROOT / "train/recipes/joystick_10min.args"
+RECIPE_10MIN_RUN = ROOT / "results/policy_h200_sensors_e16u10/comparison/chain_s1dt5_315m_ft64m_seed4"
+
+
+def test_the_ten_minute_recipe_file_builds_the_configs_its_committed_run_recorded(tmp_path):
+    """`python train/ppo_mjx.py @train/recipes/joystick_10min.args`: the trainer's own parser and
+    config code, on this CPU, build the env and PPO configs that the run made on the GPU with the
+    flags spelled out recorded in its config.json files, for both stages (a flag after the file
+    overrides it: the run's seed)."""
+    from quadson_mjx.cli import train_configs
+
+    args, overrides = train_cli.parse(
+        [f"@{RECIPE_10MIN}", "--ppo.seed=4", "--run-dir", str(tmp_path / "run")]
+    )
+    env_cfg, ppo_cfg, _, plan, _ = train_configs.run_configs(args, overrides, primary=False)
+    tune_env, tune_ppo, _ = train_configs.new_run_configs(env_cfg, ppo_cfg, plan[0], tmp_path / "ft", False)
+    for (env, ppo), run in (((env_cfg, ppo_cfg), RECIPE_10MIN_RUN), ((tune_env, tune_ppo), RECIPE_10MIN_RUN / "finetune")):  # fmt: skip
+        saved = json.loads((run / "config.json").read_text())
+        assert to_json(with_added_keys(saved["env"])) == to_json(env), run
+        assert json.loads(to_json(ppo)) == saved["ppo"], run
+    assert env_cfg.sim_dt == 0.005 and tune_env.sim_dt == 0.0025
+
+
+def test_a_recipe_file_that_is_missing_is_one_line_and_exit_2(tmp_path, capsys):
+    assert train_cli.main([f"@{tmp_path / 'nope.args'}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope.args" in err[0], err

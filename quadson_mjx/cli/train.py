@@ -10,6 +10,7 @@
     quadson-train --task QuadsonJoystickRough --finetune.env.sim_dt=0.0025 --finetune.ppo.learning_rate=0.0003
                                                               # then a fine-tune from its end (cli/finetune.py)
     quadson-train --compile-only --init-from RUN --env.sim_dt=0.0025   # a run's programs into the cache
+    quadson-train @train/recipes/joystick_10min.args          # a recipe: flags read from a file
     quadson-train --list-tasks                                # the registered tasks and their flags
     quadson-train --coordinator host0:1234 --num-processes 2 --process-id 0   # on host0 (1 on host1)
     srun quadson-train --distributed                          # SLURM / Open MPI: one task per host
@@ -49,7 +50,11 @@ from quadson_mjx.robots import ROBOT_NAMES
 
 
 def parse(argv):
-    p = ArgumentParser(description=__doc__.split("\n\n")[0], epilog="overrides: --env.KEY=V --ppo.KEY=V")
+    p = ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="overrides: --env.KEY=V --ppo.KEY=V; @FILE reads flags from FILE (train/recipes/)",
+        fromfile_prefix_chars="@",
+    )
     p.add_argument(
         "--preset", default=None, help="ppo preset: gpu, cpu or test (default: gpu if a GPU is present)"
     )
