@@ -656,7 +656,8 @@ def test_the_ten_minute_recipe_file_builds_the_configs_its_committed_run_recorde
     )
     env_cfg, ppo_cfg, _, plan, _ = train_configs.run_configs(args, overrides, primary=False)
     tune_env, tune_ppo, _ = train_configs.new_run_configs(env_cfg, ppo_cfg, plan[0], tmp_path / "ft", False)
-    for (env, ppo), run in (((env_cfg, ppo_cfg), RECIPE_10MIN_RUN), ((tune_env, tune_ppo), RECIPE_10MIN_RUN / "finetune")):  # fmt: skip
+    stages = {RECIPE_10MIN_RUN: (env_cfg, ppo_cfg), RECIPE_10MIN_RUN / "finetune": (tune_env, tune_ppo)}
+    for run, (env, ppo) in stages.items():
         saved = json.loads((run / "config.json").read_text())
         assert to_json(with_added_keys(saved["env"])) == to_json(env), run
         assert json.loads(to_json(ppo)) == saved["ppo"], run
