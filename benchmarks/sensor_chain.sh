@@ -11,7 +11,8 @@
 # OUT_DIR/NAME/ gets the first stage's run (config, MCAP log, its newest checkpoint), the console
 # with the command's wall clock (train_console.log), finetune/ (the same) and eval_dt2.{json,log}.
 # STAGE1_STEPS, FT_STEPS, ENVS, BATCH and SWEEP (the sweep's --seconds and --replicas; none: no
-# sweep) change the recipe's; a quick try on the CPU (no GPU: the variants share it):
+# sweep) change the recipe's; KEEP_STEPS="N ..." keeps the first stage's checkpoints at those steps
+# too (for fine-tunes from them later); a quick try on the CPU (no GPU: the variants share it):
 #   ENVS=16 BATCH=16 STAGE1_STEPS=20480 FT_STEPS=20480 SWEEP="--seconds 1.2 --replicas 1" bash ...
 set -u
 out=${1:?usage: sensor_chain.sh OUT_DIR NAME:ARGS [NAME:ARGS ...]}
@@ -49,7 +50,11 @@ one() {  # gpu name args
   for ck in "$dir/checkpoints" "$dir/finetune/checkpoints"; do  # each stage's newest checkpoint only
     [ -d "$ck" ] || continue
     last=$(find "$ck" -name 'step_*.msgpack' | sort | tail -1)
-    find "$ck" \( -name 'step_*.msgpack' -o -name 'state_*.npz' \) ! -path "$last" -exec rm -f {} {}.sha256 \;
+    local keep=()
+    for k in ${KEEP_STEPS:-}; do
+      [ "$ck" = "$dir/checkpoints" ] && keep+=(! -name "$(printf 'step_%012d.msgpack' "$k")")
+    done
+    find "$ck" \( -name 'step_*.msgpack' -o -name 'state_*.npz' \) ! -path "$last" "${keep[@]}" -exec rm -f {} {}.sha256 \;
   done
   [ "$rc" -eq 0 ] && [ "${SWEEP:-}" != none ] || return
   # shellcheck disable=SC2086  # SWEEP holds several words
