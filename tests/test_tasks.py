@@ -191,6 +191,21 @@ COMMITTED_RUNS = {
         for s in (3, 4)
         for ft in ("", "/finetune")
     },
+    # the chain with its first stage at a 6.67 ms physics step (three a control step): 315M steps
+    # (seed 0; its 229M and 258M checkpoints kept, each fine-tuned too) and 229M steps (seed 1)
+    **{
+        f"results/policy_h200_sensors_e16u10/comparison/chain_s1dt667_{run}{ft}": (
+            "QuadsonJoystickRough",
+            [*C048_HFC1, "sim_dt=0.0025", "reward.weights.ang_vel_tracking_exp=2.0"]
+            if ft
+            else [*C048_HFC1, "sim_dt=0.006666666666666667"],
+        )
+        for run, fts in (
+            ("315m", ("", "/finetune", "/ft_from_229m", "/ft_from_258m")),
+            ("229m_seed1", ("", "/finetune")),
+        )
+        for ft in fts
+    },
     # the robust recipe on the tiled ground with its curriculum
     "results/tiles_h100": ("QuadsonJoystickTiles", []),
     # and two fine-tunes (--init-from): a narrower tracking kernel, then a lighter pitch term
