@@ -47,14 +47,13 @@ one() {  # gpu name args
     "$rc" "$(python3 -c "import time; print(time.time() - $t0)")" >> "$log"
   mkdir -p "$dir" && mv "$log" "$dir/train_console.log"
   rm -rf "$cache"
+  local keep=() k  # the first stage's checkpoints at KEEP_STEPS, besides each stage's newest
+  for k in ${KEEP_STEPS:-}; do keep+=(! -name "$(printf 'step_%012d.msgpack' "$k")"); done
   for ck in "$dir/checkpoints" "$dir/finetune/checkpoints"; do  # each stage's newest checkpoint only
     [ -d "$ck" ] || continue
     last=$(find "$ck" -name 'step_*.msgpack' | sort | tail -1)
-    local keep=()
-    for k in ${KEEP_STEPS:-}; do
-      [ "$ck" = "$dir/checkpoints" ] && keep+=(! -name "$(printf 'step_%012d.msgpack' "$k")")
-    done
     find "$ck" \( -name 'step_*.msgpack' -o -name 'state_*.npz' \) ! -path "$last" "${keep[@]}" -exec rm -f {} {}.sha256 \;
+    keep=()
   done
   [ "$rc" -eq 0 ] && [ "${SWEEP:-}" != none ] || return
   # shellcheck disable=SC2086  # SWEEP holds several words
